@@ -1,0 +1,49 @@
+# Two entry points for a fresh machine with Python 3.11 and pip: `make demo`, `make test`.
+PYTHON ?= python3
+VENV := .venv
+PY := $(VENV)/bin/python
+PIP := $(PY) -m pip
+STAMP := $(VENV)/.installed
+SYSTEM_PACKAGES := libegl1 libosmesa6 libgl1 libusb-1.0-0
+export MUJOCO_GL ?= egl
+export PYOPENGL_PLATFORM ?= egl
+
+.PHONY: demo test lint bench clean system-packages
+
+$(STAMP): pyproject.toml constraints.txt
+	$(MAKE) system-packages
+	test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	$(PIP) install --upgrade pip
+	# torch first: this pin resolves to the local CPU wheel; a bare range would pull CUDA builds.
+	$(PIP) install torch==2.13.0
+	$(PIP) install -c constraints.txt -e ".[dev]"
+	# robosuite depends on opencv-python; keep exactly one OpenCV (the headless one) importable.
+	$(PIP) uninstall -y opencv-python
+	$(PIP) install -c constraints.txt --force-reinstall --no-deps opencv-python-headless
+	$(PY) -c "import cv2, torch, torchrl, gymnasium, stable_baselines3, robosuite, mujoco, roma, dd"
+	touch $(STAMP)
+
+# Debian libraries for offscreen MuJoCo rendering (EGL / OSMesa) and Open3D.
+system-packages:
+	@missing=""; for p in $(SYSTEM_PACKAGES); do dpkg -s $$p >/dev/null 2>&1 || missing="$$missing $$p"; done; \
+	if [ -n "$$missing" ]; then \
+		echo "installing Debian packages:$$missing"; \
+		SUDO=$$( [ "$$(id -u)" = 0 ] || echo sudo ); \
+		$$SUDO apt-get update && DEBIAN_FRONTEND=noninteractive $$SUDO apt-get install -y --no-install-recommends $$missing; \
+	fi
+
+demo: $(STAMP)
+	$(PY) scripts/train_rlvc.py
+
+test: $(STAMP)
+	$(PY) -m pytest -q
+
+lint: $(STAMP)
+	$(VENV)/bin/ruff check .
+	$(VENV)/bin/ruff format --check .
+
+bench: $(STAMP)
+	$(PY) scripts/bench_features.py
+
+clean:
+	rm -rf $(VENV) build *.egg-info

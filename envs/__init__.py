@@ -1,0 +1,35 @@
+"""Gymnasium environments of vistask (installed as ``vistask.envs``).
+
+Importing this package registers ``vistask/VisualMaze-v0`` and ``vistask/GraspTrial-v0``.
+Robosuite-based modules (``tabletop``, ``grasp_trial``) are imported only when used: importing
+robosuite takes seconds.
+"""
+
+from gymnasium.envs.registration import register, registry
+from vistask.envs.maze_oracle import (
+    EvaluationResult,
+    MazeOracle,
+    evaluate_policy,
+    start_positions,
+)
+from vistask.envs.visual_maze import ACTION_NAMES, MazeGeometry, VisualMazeEnv, draw_maze
+
+if "vistask/VisualMaze-v0" not in registry:
+    register(
+        id="vistask/VisualMaze-v0",
+        entry_point="vistask.envs.visual_maze:VisualMazeEnv",
+        max_episode_steps=100,
+    )
+if "vistask/GraspTrial-v0" not in registry:
+    register(id="vistask/GraspTrial-v0", entry_point="vistask.envs.grasp_trial:GraspTrialEnv")
+
+__all__ = [
+    "ACTION_NAMES",
+    "EvaluationResult",
+    "MazeGeometry",
+    "MazeOracle",
+    "VisualMazeEnv",
+    "draw_maze",
+    "evaluate_policy",
+    "start_positions",
+]

@@ -1,0 +1,189 @@
+"""An oracle for the visual maze that sees the true position, and the shared evaluation protocol.
+
+``MazeOracle.solve`` discretizes the maze into an N x N grid of true positions and runs value
+iteration over the true noisy dynamics (paper Fig. 4 left). ``evaluate_policy`` runs any policy
+from a fixed set of start positions with fixed noise seeds and returns its mean discounted
+return: every method in the toolkit is scored with it.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+from vistask.envs.visual_maze import MazeGeometry, VisualMazeEnv
+
+Policy = Callable[[np.ndarray, dict], int]
+
+
+@dataclass
+class MazeOracle:
+    """Optimal value function and greedy policy on a grid of true positions.
+
+    Attributes:
+        geometry: the maze solved.
+        q: (4, N, N) action values at the grid cells, indexed [action, row (y), column (x)].
+    """
+
+    geometry: MazeGeometry
+    q: np.ndarray
+
+    @property
+    def grid(self) -> int:
+        return self.q.shape[1]
+
+    @property
+    def values(self) -> np.ndarray:
+        """(N, N) optimal values V = max_a Q, indexed [row (y), column (x)]."""
+        return self.q.max(axis=0)
+
+    @property
+    def policy(self) -> np.ndarray:
+        """(N, N) greedy action ids, indexed [row (y), column (x)]."""
+        return self.q.argmax(axis=0)
+
+    @classmethod
+    def solve(
+        cls,
+        geometry: MazeGeometry,
+        grid: int = 50,
+        samples: int = 64,
+        seed: int = 0,
+        tol: float = 1e-6,
+    ) -> MazeOracle:
+        """Value iteration on the grid-discretized true dynamics.
+
+        Args:
+            geometry: maze geometry (``env.unwrapped.geometry``).
+            grid: cells per side.
+            samples: Monte Carlo noise draws per (cell, action) to estimate transitions.
+            seed: seed of the noise draws.
+            tol: stop when no value changes by more than this.
+        """
+        if grid < 2 or samples < 1:
+            raise ValueError(f"grid must be >= 2 and samples >= 1, got {grid}, {samples}")
+        cells = grid * grid
+        origins = _cell_origins(geometry, grid)  # (cells, 2)
+        noise = np.random.default_rng(seed).standard_normal((samples, 2))
+        if geometry.noise_std == 0:
+            noise = noise[:1] * 0
+        k = len(noise)
+        n_actions = 4
+        rewards = np.zeros((n_actions, cells))
+        transitions = []
+        for a in range(n_actions):
+            points = np.repeat(origins, k, axis=0)
+            new, exited = geometry.move(points, np.full(len(points), a), np.tile(noise, (cells, 1)))
+            exited = exited.reshape(cells, k)
+            rewards[a] = geometry.reward * exited.mean(axis=1)
+            target = _cell_index(geometry, grid, new).reshape(cells, k)
+            rows = np.repeat(np.arange(cells), k)[~exited.ravel()]
+            transitions.append(
+                sp.csr_matrix(
+                    (np.full(len(rows), 1.0 / k), (rows, target.ravel()[~exited.ravel()])),
+                    shape=(cells, cells),
+                )
+            )
+        values = np.zeros(cells)
+        q = rewards.copy()
+        for _ in range(100_000):
+            q = rewards + geometry.gamma * np.stack([t @ values for t in transitions])
+            new_values = q.max(axis=0)
+            delta = np.abs(new_values - values).max()
+            values = new_values
+            if delta < tol:
+                break
+        return cls(geometry, q.reshape(n_actions, grid, grid))
+
+    def cell(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(row, column) grid indices of (N, 2) positions."""
+        index = _cell_index(self.geometry, self.grid, np.atleast_2d(points))
+        return np.divmod(index, self.grid)
+
+    def value(self, points: np.ndarray) -> np.ndarray:
+        """(N,) optimal values at (N, 2) positions (value of the containing cell)."""
+        return self.values[self.cell(points)]
+
+    def act(self, points: np.ndarray) -> np.ndarray:
+        """(N,) greedy actions at (N, 2) positions."""
+        return self.policy[self.cell(points)]
+
+    def as_policy(self) -> Policy:
+        """The oracle as a ``Policy`` for ``evaluate_policy`` (reads ``info["position"]``)."""
+        return lambda obs, info: int(self.act(info["position"])[0])
+
+
+def _cell_index(geometry: MazeGeometry, grid: int, points: np.ndarray) -> np.ndarray:
+    ij = np.clip((points / geometry.size * grid).astype(int), 0, grid - 1)
+    return ij[:, 1] * grid + ij[:, 0]
+
+
+def _cell_origins(geometry: MazeGeometry, grid: int, sub: int = 5) -> np.ndarray:
+    """(grid*grid, 2) a free point of each cell: its centre, else the free sub-cell point
+    nearest to the centre. Cells near walls would otherwise start inside the wall and look
+    stuck; fully blocked cells keep their centre (they are never reached)."""
+    width = geometry.size / grid
+    offsets = (np.arange(sub) + 0.5) / sub - 0.5
+    offsets = np.stack(np.meshgrid(offsets, offsets), -1).reshape(-1, 2)
+    offsets = offsets[np.argsort(np.linalg.norm(offsets, axis=1), kind="stable")] * width
+    jj, ii = np.meshgrid(np.arange(grid), np.arange(grid))  # jj: column (x), ii: row (y)
+    centres = (np.stack([jj.ravel(), ii.ravel()], -1) + 0.5) * width
+    candidates = centres[:, None, :] + offsets[None]  # (cells, sub*sub, 2)
+    free = geometry.is_free(candidates.reshape(-1, 2)).reshape(len(centres), -1)
+    first = np.where(free.any(axis=1), free.argmax(axis=1), 0)
+    return np.where(free.any(axis=1)[:, None], candidates[np.arange(len(centres)), first], centres)
+
+
+def start_positions(geometry: MazeGeometry, n: int = 100, seed: int = 12345) -> np.ndarray:
+    """The fixed evaluation start set: (n, 2) free positions drawn with ``seed``."""
+    return geometry.sample_free(np.random.default_rng(seed), n)
+
+
+@dataclass
+class EvaluationResult:
+    """Outcome of ``evaluate_policy``: ``returns`` (n,) discounted returns, ``steps`` (n,)."""
+
+    returns: np.ndarray
+    steps: np.ndarray
+
+    @property
+    def mean(self) -> float:
+        return float(self.returns.mean())
+
+
+def evaluate_policy(
+    env: VisualMazeEnv,
+    policy: Policy,
+    starts: np.ndarray | None = None,
+    max_steps: int = 100,
+    seed: int = 0,
+) -> EvaluationResult:
+    """Run ``policy`` once from each start and return the discounted returns.
+
+    Episode i is reset with noise seed ``seed + i``, so two policies that act alike see the same
+    noise: differences between methods are not drowned in sampling noise.
+
+    Args:
+        env: a visual maze (``gym.make("vistask/VisualMaze-v0")`` or the raw class).
+        policy: ``policy(obs, info) -> action``; ``info["position"]`` is for oracles only.
+        starts: (n, 2) start positions (default ``start_positions(geometry)``).
+        max_steps: episode cut-off (gamma^100 is negligible).
+        seed: base noise seed.
+    """
+    maze = env.unwrapped
+    if not isinstance(maze, VisualMazeEnv):
+        raise TypeError(f"evaluate_policy needs a VisualMazeEnv, got {type(maze).__name__}")
+    starts = start_positions(maze.geometry) if starts is None else np.asarray(starts)
+    gamma = maze.geometry.gamma
+    returns, steps = np.zeros(len(starts)), np.zeros(len(starts), int)
+    for i, start in enumerate(starts):
+        obs, info = maze.reset(seed=seed + i, options={"position": start})
+        for t in range(max_steps):
+            obs, reward, terminated, _, info = maze.step(policy(obs, info))
+            returns[i] += gamma**t * reward
+            if terminated:
+                break
+        steps[i] = t + 1
+    return EvaluationResult(returns, steps)

@@ -1,0 +1,89 @@
+"""A montage of real photographs that ship inside installed packages (never downloaded).
+
+The paper's maze percepts were windows of a tiled montage of COIL-100 images. COIL-100 is not
+shipped by any package, so the tapestry is built from the colour photographs bundled with
+scikit-image, robosuite (object textures) and matplotlib (sample data). Each tile is a crop of
+one photograph at a random position and scale, chosen by a seeded generator: the same seed
+always gives the same tapestry.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+from functools import cache
+from pathlib import Path
+
+import cv2
+import numpy as np
+from PIL import Image
+
+# (package, path inside the package) of colour photographs; all ship inside the wheels.
+PHOTOS: tuple[tuple[str, str], ...] = (
+    ("skimage", "data/astronaut.png"),
+    ("skimage", "data/chelsea.png"),
+    ("skimage", "data/coffee.png"),
+    ("skimage", "data/rocket.jpg"),
+    ("skimage", "data/hubble_deep_field.jpg"),
+    ("skimage", "data/ihc.png"),
+    ("skimage", "data/retina.jpg"),
+    ("skimage", "data/motorcycle_left.png"),
+    ("skimage", "data/color.png"),
+    ("matplotlib", "mpl-data/sample_data/grace_hopper.jpg"),
+    ("robosuite", "models/assets/textures/bread.png"),
+    ("robosuite", "models/assets/textures/can.png"),
+    ("robosuite", "models/assets/textures/cereal.png"),
+    ("robosuite", "models/assets/textures/lemon.png"),
+    ("robosuite", "models/assets/textures/soda.png"),
+)
+
+
+def _package_dir(package: str) -> Path:
+    # find_spec locates the package without importing it (importing robosuite is slow and noisy).
+    spec = importlib.util.find_spec(package)
+    if spec is None or not spec.submodule_search_locations:
+        raise ModuleNotFoundError(f"package {package!r} is needed for the tapestry photographs")
+    return Path(next(iter(spec.submodule_search_locations)))
+
+
+@cache
+def load_photo(index: int) -> np.ndarray:
+    """Photograph ``PHOTOS[index]`` as an (H, W, 3) uint8 RGB array (alpha dropped)."""
+    package, relative = PHOTOS[index]
+    path = _package_dir(package) / relative
+    if not path.is_file():
+        raise FileNotFoundError(f"bundled photograph {path} is missing; reinstall {package}")
+    with Image.open(path) as photo:
+        image = np.asarray(photo.convert("RGB"))
+    image.setflags(write=False)
+    return image
+
+
+def make_tapestry(height: int, width: int, tile: int = 96, seed: int = 0) -> np.ndarray:
+    """Tile an (height, width) canvas with random crops of the bundled photographs.
+
+    Args:
+        height, width: canvas size in pixels.
+        tile: side of a square tile in pixels.
+        seed: the same seed always gives the same tapestry.
+
+    Returns:
+        (height, width, 3) uint8 RGB image.
+    """
+    if height <= 0 or width <= 0 or tile <= 0:
+        raise ValueError(f"tapestry size and tile must be positive, got {height}x{width}, {tile}")
+    rng = np.random.default_rng(seed)
+    rows, cols = -(-height // tile), -(-width // tile)
+    canvas = np.zeros((rows * tile, cols * tile, 3), np.uint8)
+    # Walk through a shuffled photo order so that neighbouring tiles come from different photos.
+    order = rng.permutation(rows * cols) % len(PHOTOS)
+    for k, photo_index in enumerate(order):
+        photo = load_photo(int(photo_index))
+        h, w = photo.shape[:2]
+        side = int(rng.uniform(0.35, 0.8) * min(h, w))
+        y0, x0 = rng.integers(0, h - side + 1), rng.integers(0, w - side + 1)
+        crop = photo[y0 : y0 + side, x0 : x0 + side]
+        r, c = divmod(k, cols)
+        canvas[r * tile : (r + 1) * tile, c * tile : (c + 1) * tile] = cv2.resize(
+            crop, (tile, tile), interpolation=cv2.INTER_AREA
+        )
+    return np.ascontiguousarray(canvas[:height, :width])

@@ -1,0 +1,280 @@
+"""The noisy visual maze of the paper's Fig. 3, as a Gymnasium environment.
+
+Coordinates: a position is (x, y) in the square [0, size]^2 with x to the right and y *down*,
+as in the image that shows the maze; "up" therefore decreases y.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import ClassVar
+
+import cv2
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+from vistask.envs.tapestry import make_tapestry
+
+Rect = tuple[float, float, float, float]  # (x0, y0, x1, y1), x0 < x1, y0 < y1
+
+ACTION_NAMES: tuple[str, ...] = ("up", "right", "down", "left")
+# Unit displacement of each action in (x, y) with y pointing down.
+ACTION_DIRECTIONS = np.array([[0.0, -1.0], [1.0, 0.0], [0.0, 1.0], [-1.0, 0.0]])
+
+DEFAULT_OBSTACLES: tuple[Rect, ...] = (
+    (0.30, 0.00, 0.36, 0.60),
+    (0.64, 0.40, 0.70, 1.00),
+    (0.00, 0.75, 0.20, 0.80),
+    (0.80, 0.20, 1.00, 0.25),
+)
+DEFAULT_EXITS: tuple[Rect, ...] = ((0.00, 0.00, 0.10, 0.10), (0.90, 0.90, 1.00, 1.00))
+
+
+def _rects_array(rects: tuple[Rect, ...] | list, name: str, size: float) -> np.ndarray:
+    array = np.asarray(rects, dtype=np.float64).reshape(-1, 4) if len(rects) else np.zeros((0, 4))
+    if array.ndim != 2 or array.shape[1] != 4:
+        raise ValueError(f"{name} must be a list of (x0, y0, x1, y1) rectangles")
+    if np.any(array[:, 2] <= array[:, 0]) or np.any(array[:, 3] <= array[:, 1]):
+        raise ValueError(f"{name}: every rectangle needs x0 < x1 and y0 < y1, got {array.tolist()}")
+    if np.any(array < 0) or np.any(array > size):
+        raise ValueError(f"{name}: rectangles must lie inside the maze [0, {size}]^2")
+    return array
+
+
+def _inside(points: np.ndarray, rects: np.ndarray) -> np.ndarray:
+    """(N,) bool: point lies in (the closure of) some rectangle. points (N, 2), rects (R, 4)."""
+    x, y = points[:, :1], points[:, 1:]
+    hit = (x >= rects[:, 0]) & (x <= rects[:, 2]) & (y >= rects[:, 1]) & (y <= rects[:, 3])
+    return hit.any(axis=1)
+
+
+def _segment_hits(start: np.ndarray, end: np.ndarray, rects: np.ndarray) -> np.ndarray:
+    """(N,) bool: segment start->end crosses some rectangle (Liang-Barsky clipping).
+
+    start, end: (N, 2); rects: (R, 4). Checking the whole segment, not only its end, keeps a
+    long or noisy move from jumping over a thin wall.
+    """
+    if len(rects) == 0:
+        return np.zeros(len(start), bool)
+    p = start[:, None, :]  # (N, 1, 2)
+    d = (end - start)[:, None, :]
+    lo, hi = rects[None, :, :2], rects[None, :, 2:]  # (1, R, 2)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t0, t1 = (lo - p) / d, (hi - p) / d
+    t_near, t_far = np.minimum(t0, t1), np.maximum(t0, t1)
+    # An axis without motion constrains nothing if the start lies within the slab, else all.
+    still = d == 0
+    in_slab = (p >= lo) & (p <= hi)
+    t_near = np.where(still, np.where(in_slab, -np.inf, np.inf), t_near)
+    t_far = np.where(still, np.where(in_slab, np.inf, -np.inf), t_far)
+    enter, leave = t_near.max(axis=2), t_far.min(axis=2)
+    return ((enter <= leave) & (leave >= 0) & (enter <= 1)).any(axis=1)
+
+
+@dataclass(frozen=True)
+class MazeGeometry:
+    """Geometry and true dynamics of the maze, shared by the env and the oracle.
+
+    Args:
+        size: side of the square maze.
+        obstacles: invisible rectangles (x0, y0, x1, y1) that block moves.
+        exits: rectangles whose reaching ends the episode with reward 100.
+        step: length of one move.
+        noise_std: std of the Gaussian noise added to every move (default 2% of ``size``).
+        gamma: the task's discount factor.
+        reward: reward for reaching an exit.
+    """
+
+    size: float = 1.0
+    obstacles: tuple[Rect, ...] = DEFAULT_OBSTACLES
+    exits: tuple[Rect, ...] = DEFAULT_EXITS
+    step: float = 0.05
+    noise_std: float | None = None
+    gamma: float = 0.9
+    reward: float = 100.0
+    obstacle_array: np.ndarray = field(init=False, repr=False, compare=False)
+    exit_array: np.ndarray = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        if not self.size > 0:
+            raise ValueError(f"size must be positive, got {self.size}")
+        if not 0 < self.step <= self.size:
+            raise ValueError(f"step must be in (0, size], got {self.step}")
+        if self.noise_std is None:
+            object.__setattr__(self, "noise_std", 0.02 * self.size)
+        if self.noise_std < 0:
+            raise ValueError(f"noise_std must be >= 0, got {self.noise_std}")
+        if not 0 <= self.gamma < 1:
+            raise ValueError(f"gamma must be in [0, 1), got {self.gamma}")
+        object.__setattr__(
+            self, "obstacle_array", _rects_array(self.obstacles, "obstacles", self.size)
+        )
+        object.__setattr__(self, "exit_array", _rects_array(self.exits, "exits", self.size))
+        if len(self.exit_array) == 0:
+            raise ValueError("the maze needs at least one exit")
+
+    def is_free(self, points: np.ndarray) -> np.ndarray:
+        """(N,) bool: inside the maze, not in an obstacle and not in an exit. points (N, 2)."""
+        points = np.atleast_2d(points)
+        inside = np.all((points >= 0) & (points <= self.size), axis=1)
+        return inside & ~_inside(points, self.obstacle_array) & ~_inside(points, self.exit_array)
+
+    def move(self, points: np.ndarray, actions: np.ndarray, noise: np.ndarray):
+        """Apply the true dynamics to a batch.
+
+        Args:
+            points: (N, 2) positions.
+            actions: (N,) action ids in 0..3.
+            noise: (N, 2) standard-normal draws (scaled by ``noise_std`` here).
+
+        Returns:
+            new positions (N, 2) and (N,) bool "an exit was reached".
+        """
+        target = points + self.step * ACTION_DIRECTIONS[actions] + self.noise_std * noise
+        outside = np.any((target < 0) | (target > self.size), axis=1)
+        blocked = outside | _segment_hits(points, target, self.obstacle_array)
+        new = np.where(blocked[:, None], points, target)
+        return new, _inside(new, self.exit_array) & ~blocked
+
+    def sample_free(self, rng: np.random.Generator, n: int) -> np.ndarray:
+        """(n, 2) uniformly random free positions (rejection sampling)."""
+        found: list[np.ndarray] = []
+        count = 0
+        while count < n:
+            candidates = rng.uniform(0, self.size, size=(max(2 * (n - count), 16), 2))
+            candidates = candidates[self.is_free(candidates)]
+            found.append(candidates)
+            count += len(candidates)
+        return np.concatenate(found)[:n]
+
+
+class VisualMazeEnv(gym.Env):
+    """Reach one of two exits of a noisy maze seeing only a window of a photo tapestry.
+
+    Observation: (window, window, 3) uint8 RGB crop of the tapestry centred on the agent.
+    Actions: ``Discrete(4)``: up, right, down, left (``ACTION_NAMES``). Reward 100 when an exit
+    is reached (terminated), 0 otherwise. ``info["position"]`` holds the true position (for
+    oracles and plots only; agents must not use it).
+
+    Example:
+        >>> import gymnasium as gym, vistask.envs
+        >>> env = gym.make("vistask/VisualMaze-v0", step=0.08)
+        >>> obs, info = env.reset(seed=0)
+        >>> obs.shape
+        (64, 64, 3)
+
+    Args:
+        size, obstacles, exits, step, noise_std, gamma: see ``MazeGeometry``.
+        window: side of the square percept in pixels (>= 36 for SB3's CNN).
+        pixels_per_unit: tapestry pixels per maze unit (the maze spans ``size * ppu`` pixels).
+        tile: tapestry tile size in pixels.
+        tapestry_seed: seed of the tapestry montage (the world, not the episode noise).
+        render_mode: ``None`` or ``"rgb_array"``.
+    """
+
+    metadata: ClassVar[dict] = {"render_modes": ["rgb_array"], "render_fps": 10}
+
+    def __init__(
+        self,
+        size: float = 1.0,
+        obstacles: tuple[Rect, ...] = DEFAULT_OBSTACLES,
+        exits: tuple[Rect, ...] = DEFAULT_EXITS,
+        step: float = 0.05,
+        noise_std: float | None = None,
+        gamma: float = 0.9,
+        window: int = 64,
+        pixels_per_unit: float = 480.0,
+        tile: int = 96,
+        tapestry_seed: int = 0,
+        render_mode: str | None = None,
+    ) -> None:
+        self.geometry = MazeGeometry(size, tuple(obstacles), tuple(exits), step, noise_std, gamma)
+        if not isinstance(window, int | np.integer) or window < 8:
+            raise ValueError(f"window must be an integer >= 8 pixels, got {window!r}")
+        if pixels_per_unit <= 0:
+            raise ValueError(f"pixels_per_unit must be positive, got {pixels_per_unit}")
+        if render_mode not in (None, *self.metadata["render_modes"]):
+            raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
+        self.gamma = gamma
+        self.window = int(window)
+        self.pixels_per_unit = float(pixels_per_unit)
+        self.render_mode = render_mode
+        self.margin = self.window // 2
+        side = int(np.ceil(size * pixels_per_unit)) + self.window + 1
+        self.tapestry = make_tapestry(side, side, tile=tile, seed=tapestry_seed)
+        self.tapestry.setflags(write=False)
+        self.observation_space = spaces.Box(0, 255, (self.window, self.window, 3), np.uint8)
+        self.action_space = spaces.Discrete(len(ACTION_NAMES))
+        self.position = np.zeros(2)
+
+    # -- percepts -------------------------------------------------------------------------
+    def percept_at(self, position: np.ndarray) -> np.ndarray:
+        """(window, window, 3) uint8 percept centred on ``position`` (a fresh array)."""
+        cx, cy = np.rint(self.margin + np.asarray(position) * self.pixels_per_unit).astype(int)
+        x0, y0 = cx - self.margin, cy - self.margin
+        return self.tapestry[y0 : y0 + self.window, x0 : x0 + self.window].copy()
+
+    # -- gymnasium API -----------------------------------------------------------------------
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        super().reset(seed=seed)
+        options = options or {}
+        if "position" in options:
+            position = np.asarray(options["position"], dtype=np.float64)
+            if position.shape != (2,) or not self.geometry.is_free(position)[0]:
+                raise ValueError(f"start position {options['position']!r} is not a free (x, y)")
+            self.position = position.copy()
+        else:
+            self.position = self.geometry.sample_free(self.np_random, 1)[0]
+        return self.percept_at(self.position), {"position": self.position.copy()}
+
+    def step(self, action):
+        if not self.action_space.contains(action):
+            raise ValueError(
+                f"invalid action {action!r}: expected an int in 0..{self.action_space.n - 1}"
+                f" ({', '.join(ACTION_NAMES)})"
+            )
+        noise = self.np_random.standard_normal((1, 2))
+        new, exited = self.geometry.move(self.position[None], np.array([int(action)]), noise)
+        self.position = new[0]
+        terminated = bool(exited[0])
+        reward = self.geometry.reward if terminated else 0.0
+        obs = self.percept_at(self.position)
+        return obs, reward, terminated, False, {"position": self.position.copy()}
+
+    def render(self) -> np.ndarray | None:
+        if self.render_mode != "rgb_array":
+            return None
+        return draw_maze(self, agent=self.position)
+
+
+def to_pixels(env: VisualMazeEnv, points: np.ndarray) -> np.ndarray:
+    """Maze coordinates (..., 2) -> pixel coordinates in the image of ``draw_maze``."""
+    return np.asarray(points) * env.pixels_per_unit
+
+
+def draw_maze(env: VisualMazeEnv, agent: np.ndarray | None = None) -> np.ndarray:
+    """Picture of the whole maze: tapestry, obstacles (solid), exits (crossed), agent, window."""
+    g, m = env.geometry, env.margin
+    side = int(np.ceil(g.size * env.pixels_per_unit))
+    image = env.tapestry[m : m + side, m : m + side].copy()
+    overlay = image.copy()
+    for x0, y0, x1, y1 in to_pixels(env, g.obstacle_array).astype(int):
+        cv2.rectangle(overlay, (x0, y0), (x1, y1), (40, 40, 40), -1)
+    image = cv2.addWeighted(overlay, 0.8, image, 0.2, 0)
+    for x0, y0, x1, y1 in to_pixels(env, g.exit_array).astype(int):
+        cv2.rectangle(image, (x0, y0), (x1, y1), (0, 255, 0), 2)
+        cv2.line(image, (x0, y0), (x1, y1), (0, 255, 0), 2)
+        cv2.line(image, (x0, y1), (x1, y0), (0, 255, 0), 2)
+    if agent is not None:
+        cx, cy = to_pixels(env, agent).astype(int)
+        cv2.circle(image, (cx, cy), 5, (255, 0, 0), -1)
+        h = env.window // 2
+        for k in range(-h, h, 6):  # dashed outline of the percept window
+            for a, b in (
+                ((cx + k, cy - h), (cx + k + 3, cy - h)),
+                ((cx + k, cy + h), (cx + k + 3, cy + h)),
+                ((cx - h, cy + k), (cx - h, cy + k + 3)),
+                ((cx + h, cy + k), (cx + h, cy + k + 3)),
+            ):
+                cv2.line(image, a, b, (255, 255, 0), 1)
+    return image

@@ -1,0 +1,13 @@
+"""Image -> visual features: local descriptors at interest points and a learned vocabulary."""
+
+from vistask.features.keypoints import Keypoints, SiftExtractor, check_image
+from vistask.features.vocabulary import Occurrences, VisualFeatureExtractor, kmeans
+
+__all__ = [
+    "Keypoints",
+    "Occurrences",
+    "SiftExtractor",
+    "VisualFeatureExtractor",
+    "check_image",
+    "kmeans",
+]

@@ -1,0 +1,202 @@
+"""A vocabulary of prototype descriptors: what makes "feature f is present in image x" defined.
+
+A visual feature is a prototype (a k-means centroid of descriptors seen in sample percepts); it
+is present in a percept when one of the percept's descriptors is assigned to it (nearest
+prototype, optionally within ``max_distance``).
+"""
+
+from __future__ import annotations
+
+import hashlib
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from vistask.features.keypoints import Keypoints, SiftExtractor
+
+
+def _nearest(x: torch.Tensor, centroids: torch.Tensor, chunk: int = 8192):
+    """Nearest centroid of each row of x (M, D) -> (indices (M,), squared distances (M,))."""
+    c_sq = (centroids * centroids).sum(1)
+    index = torch.empty(len(x), dtype=torch.long, device=x.device)
+    dist = torch.empty(len(x), dtype=x.dtype, device=x.device)
+    for s in range(0, len(x), chunk):
+        block = x[s : s + chunk]
+        # ||x - c||^2 = ||x||^2 - 2 x.c + ||c||^2; ||x||^2 does not change the argmin.
+        d = torch.addmm(c_sq, block, centroids.T, alpha=-2.0)
+        best, index[s : s + chunk] = d.min(1)
+        dist[s : s + chunk] = (best + (block * block).sum(1)).clamp_min_(0)
+    return index, dist
+
+
+def kmeans(x: torch.Tensor, k: int, iters: int = 20, seed: int = 0) -> torch.Tensor:
+    """Lloyd's k-means. x (M, D) float -> centroids (k, D). Deterministic for a seed.
+
+    Empty clusters are re-seeded with the points farthest from their centroids, so that every
+    prototype ends up describing some descriptors.
+    """
+    if len(x) < k:
+        raise ValueError(f"k-means needs at least k={k} descriptors, got {len(x)}")
+    generator = torch.Generator().manual_seed(seed)
+    centroids = x[torch.randperm(len(x), generator=generator)[:k].to(x.device)].clone()
+    for _ in range(iters):
+        index, dist = _nearest(x, centroids)
+        counts = torch.bincount(index, minlength=k).to(x.dtype)
+        sums = torch.zeros_like(centroids).index_add_(0, index, x)
+        empty = counts == 0
+        centroids = sums / counts.clamp_min(1)[:, None]
+        if empty.any():
+            far = dist.topk(int(empty.sum())).indices
+            centroids[empty] = x[far]
+    return centroids
+
+
+@dataclass
+class Occurrences:
+    """Visual features found in one image: ``words`` (K,) feature ids, ``xy`` (K, 2) pixels."""
+
+    words: np.ndarray
+    xy: np.ndarray
+
+
+class VisualFeatureExtractor:
+    """Image -> set of visual features present (and where), through a learned vocabulary.
+
+    Example:
+        >>> extractor = VisualFeatureExtractor.fit(sample_images, n_words=2048)
+        >>> presence = extractor.presence(images)   # (N, F) bool tensor
+        >>> extractor.save("vocab.pt"); VisualFeatureExtractor.load("vocab.pt")
+
+    Args:
+        keypoints: the local-descriptor extractor.
+        centroids: (F, D) prototype descriptors.
+        max_distance: descriptors farther than this from every prototype are ignored (None: never).
+    """
+
+    def __init__(
+        self,
+        keypoints: SiftExtractor,
+        centroids: torch.Tensor,
+        max_distance: float | None = None,
+    ) -> None:
+        if centroids.ndim != 2 or centroids.shape[1] != keypoints.descriptor_size:
+            raise ValueError(
+                f"centroids must be (F, {keypoints.descriptor_size}), got {tuple(centroids.shape)}"
+            )
+        self.keypoints = keypoints
+        self.centroids = centroids.float().contiguous()
+        self.max_distance = max_distance
+
+    @property
+    def n_features(self) -> int:
+        return len(self.centroids)
+
+    @property
+    def fingerprint(self) -> str:
+        """Short hash of the vocabulary and extractor settings (checked when loading trees)."""
+        h = hashlib.sha1(self.centroids.cpu().numpy().tobytes())
+        h.update(repr(sorted(self.keypoints.config().items())).encode())
+        h.update(repr(self.max_distance).encode())
+        return h.hexdigest()[:16]
+
+    @classmethod
+    def fit(
+        cls,
+        images: Sequence[np.ndarray] | None = None,
+        n_words: int = 2048,
+        keypoints: SiftExtractor | None = None,
+        detected: Sequence[Keypoints] | None = None,
+        max_descriptors: int = 60_000,
+        iters: int = 15,
+        max_distance: float | None = None,
+        seed: int = 0,
+    ) -> VisualFeatureExtractor:
+        """Learn the vocabulary by k-means over descriptors of sample percepts.
+
+        Args:
+            images: sample percepts (or pass ``detected`` when keypoints are already extracted).
+            n_words: vocabulary size F (number of visual features).
+            keypoints: descriptor extractor (default ``SiftExtractor()``).
+            detected: keypoints already extracted from the sample percepts.
+            max_descriptors: random subset of descriptors used by k-means (speed).
+            iters: k-means iterations.
+            max_distance: see the class.
+            seed: seed of the subset and of the k-means initialisation.
+        """
+        keypoints = keypoints or SiftExtractor()
+        if detected is None:
+            if not images:
+                raise ValueError("fit needs sample images or already detected keypoints")
+            detected = keypoints.batch(images)
+        descriptors = [k.descriptors for k in detected if len(k)]
+        if not descriptors:
+            raise ValueError("no keypoints found in the sample percepts: cannot learn a vocabulary")
+        x = torch.from_numpy(np.concatenate(descriptors))
+        if len(x) > max_descriptors:
+            generator = torch.Generator().manual_seed(seed)
+            x = x[torch.randperm(len(x), generator=generator)[:max_descriptors]]
+        if len(x) < n_words:
+            raise ValueError(
+                f"only {len(x)} descriptors in the sample percepts for {n_words} words: "
+                "use more sample percepts or fewer words"
+            )
+        return cls(keypoints, kmeans(x, n_words, iters, seed), max_distance)
+
+    def words(self, detected: Sequence[Keypoints]) -> list[np.ndarray]:
+        """Feature id of every keypoint of every image (-1 beyond ``max_distance``)."""
+        sizes = [len(k) for k in detected]
+        if sum(sizes) == 0:
+            return [np.zeros(0, np.int64) for _ in detected]
+        x = torch.from_numpy(np.concatenate([k.descriptors for k in detected]))
+        index, dist = _nearest(x, self.centroids)
+        if self.max_distance is not None:
+            index[dist > self.max_distance**2] = -1
+        return list(np.split(index.numpy(), np.cumsum(sizes)[:-1]))
+
+    def occurrences(self, images: Sequence[np.ndarray]) -> list[Occurrences]:
+        """Features and keypoint positions of each image (what compound features need)."""
+        detected = self.keypoints.batch(images)
+        return [
+            Occurrences(w[w >= 0], k.xy[w >= 0])
+            for w, k in zip(self.words(detected), detected, strict=True)
+        ]
+
+    def presence_of(self, detected: Sequence[Keypoints]) -> torch.Tensor:
+        """(N, F) bool presence matrix of already extracted keypoints."""
+        words = self.words(detected)
+        rows = np.repeat(np.arange(len(words)), [len(w) for w in words])
+        cols = np.concatenate(words) if words else np.zeros(0, np.int64)
+        keep = cols >= 0
+        presence = torch.zeros(len(words), self.n_features, dtype=torch.bool)
+        presence[torch.from_numpy(rows[keep]), torch.from_numpy(cols[keep])] = True
+        return presence
+
+    def presence(self, images: Sequence[np.ndarray]) -> torch.Tensor:
+        """(N, F) bool: feature f present in image i. Images are (H, W, 3) uint8."""
+        return self.presence_of(self.keypoints.batch(images))
+
+    def __call__(self, image: np.ndarray) -> np.ndarray:
+        """(F,) int8 presence vector of one image (the ``MultiBinary`` observation)."""
+        return self.presence([image])[0].numpy().astype(np.int8)
+
+    def state_dict(self) -> dict:
+        return {
+            "keypoints": self.keypoints.config(),
+            "centroids": self.centroids.cpu(),
+            "max_distance": self.max_distance,
+        }
+
+    @classmethod
+    def from_state_dict(cls, state: dict) -> VisualFeatureExtractor:
+        return cls(SiftExtractor(**state["keypoints"]), state["centroids"], state["max_distance"])
+
+    def save(self, path: str | Path) -> None:
+        torch.save(self.state_dict(), path)
+
+    @classmethod
+    def load(cls, path: str | Path) -> VisualFeatureExtractor:
+        state = torch.load(path, weights_only=True)
+        return cls.from_state_dict(state)

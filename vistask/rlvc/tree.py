@@ -1,0 +1,168 @@
+"""The class structure C_k: a binary decision tree over feature-presence tests.
+
+Internal nodes test one visual feature; leaves are visual classes. Splitting a leaf keeps its
+class id for the "feature absent" child and gives the "present" child a new id, so class ids
+stay stable across stages (and Q values of untouched classes keep their meaning).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from vistask.features import VisualFeatureExtractor, check_image
+
+
+class ClassTree:
+    """Binary decision tree over feature presence; classifies batches in one vectorized call.
+
+    Example:
+        >>> tree = ClassTree(n_features=100)      # one class: everything aliased
+        >>> tree.split(0, feature=7)              # class 0 -> {7 absent: 0, 7 present: 1}
+        >>> tree.classify(presence)               # presence (N, 100) bool -> (N,) long
+
+    Args:
+        n_features: number of visual features F a presence vector holds.
+    """
+
+    def __init__(self, n_features: int) -> None:
+        if n_features < 1:
+            raise ValueError(f"n_features must be >= 1, got {n_features}")
+        self.n_features = int(n_features)
+        # Per node: tested feature (-1 at leaves), children, class id (-1 at internal nodes).
+        self.feature: list[int] = [-1]
+        self.absent: list[int] = [-1]
+        self.present: list[int] = [-1]
+        self.leaf_class: list[int] = [0]
+        self._leaf_of_class: list[int] = [0]
+
+    @property
+    def n_classes(self) -> int:
+        return len(self._leaf_of_class)
+
+    @property
+    def selected_features(self) -> list[int]:
+        """Sorted distinct features tested somewhere in the tree."""
+        return sorted({f for f in self.feature if f >= 0})
+
+    @property
+    def depth(self) -> int:
+        depth = {0: 0}
+        for node, f in enumerate(self.feature):
+            if f >= 0:
+                depth[self.absent[node]] = depth[self.present[node]] = depth[node] + 1
+        return max(depth.values())
+
+    def split(self, class_id: int, feature: int) -> int:
+        """Split a class on a feature; returns the id of the new ("present") class."""
+        if not 0 <= class_id < self.n_classes:
+            raise ValueError(f"no class {class_id} (tree has {self.n_classes})")
+        if not 0 <= feature < self.n_features:
+            raise ValueError(f"feature {feature} outside 0..{self.n_features - 1}")
+        leaf, new_class = self._leaf_of_class[class_id], self.n_classes
+        absent, present = len(self.feature), len(self.feature) + 1
+        self.feature += [-1, -1]
+        self.absent += [-1, -1]
+        self.present += [-1, -1]
+        self.leaf_class += [class_id, new_class]
+        self.feature[leaf], self.absent[leaf], self.present[leaf] = feature, absent, present
+        self.leaf_class[leaf] = -1
+        self._leaf_of_class[class_id] = absent
+        self._leaf_of_class.append(present)
+        return new_class
+
+    def classify(self, presence: torch.Tensor) -> torch.Tensor:
+        """(N, F) bool presence -> (N,) long class ids, all rows at once (one step per level)."""
+        if presence.ndim != 2 or presence.shape[1] != self.n_features:
+            raise ValueError(
+                f"presence must be (N, {self.n_features}), got {tuple(presence.shape)}"
+            )
+        device = presence.device
+        feature = torch.tensor(self.feature, device=device)
+        absent = torch.tensor(self.absent, device=device)
+        present = torch.tensor(self.present, device=device)
+        node = torch.zeros(len(presence), dtype=torch.long, device=device)
+        rows = torch.arange(len(presence), device=device)
+        for _ in range(self.depth):
+            f = feature[node]
+            bit = presence[rows, f.clamp_min(0)].bool()
+            node = torch.where(f >= 0, torch.where(bit, present[node], absent[node]), node)
+        return torch.tensor(self.leaf_class, device=device)[node]
+
+    def state_dict(self) -> dict:
+        return {
+            "n_features": self.n_features,
+            "feature": list(self.feature),
+            "absent": list(self.absent),
+            "present": list(self.present),
+            "leaf_class": list(self.leaf_class),
+        }
+
+    @classmethod
+    def from_state_dict(cls, state: dict) -> ClassTree:
+        tree = cls(state["n_features"])
+        tree.feature, tree.absent = list(state["feature"]), list(state["absent"])
+        tree.present, tree.leaf_class = list(state["present"]), list(state["leaf_class"])
+        leaves = {c: node for node, c in enumerate(tree.leaf_class) if c >= 0}
+        tree._leaf_of_class = [leaves[c] for c in range(len(leaves))]
+        return tree
+
+
+class VisualClassifier:
+    """Image -> visual class: a feature extractor and a class tree learned on its vocabulary.
+
+    Example:
+        >>> classifier = VisualClassifier(extractor, tree)
+        >>> classifier(image)          # int class of one (H, W, 3) uint8 image
+        >>> classifier.classify(images)  # (N,) long
+        >>> classifier.save("classes.pt"); VisualClassifier.load("classes.pt")
+    """
+
+    def __init__(self, extractor: VisualFeatureExtractor, tree: ClassTree) -> None:
+        if tree.n_features != extractor.n_features:
+            raise ValueError(
+                f"tree tests {tree.n_features} features but the vocabulary has "
+                f"{extractor.n_features}: they were not learned together"
+            )
+        self.extractor, self.tree = extractor, tree
+
+    @property
+    def n_classes(self) -> int:
+        return self.tree.n_classes
+
+    def classify(self, images: list[np.ndarray]) -> torch.Tensor:
+        return self.tree.classify(self.extractor.presence(images))
+
+    def __call__(self, image: np.ndarray) -> int:
+        return int(self.classify([check_image(image)])[0])
+
+    def state_dict(self) -> dict:
+        return {
+            "extractor": self.extractor.state_dict(),
+            "fingerprint": self.extractor.fingerprint,
+            "tree": self.tree.state_dict(),
+        }
+
+    @classmethod
+    def from_state_dict(
+        cls, state: dict, extractor: VisualFeatureExtractor | None = None
+    ) -> VisualClassifier:
+        """Rebuild; with ``extractor`` given, check that it is the vocabulary the tree was
+        learned on (a tree is meaningless on another vocabulary)."""
+        if extractor is None:
+            extractor = VisualFeatureExtractor.from_state_dict(state["extractor"])
+        elif extractor.fingerprint != state["fingerprint"]:
+            raise ValueError(
+                f"vocabulary mismatch: the class tree was learned on vocabulary "
+                f"{state['fingerprint']}, got {extractor.fingerprint}"
+            )
+        return cls(extractor, ClassTree.from_state_dict(state["tree"]))
+
+    def save(self, path: str | Path) -> None:
+        torch.save(self.state_dict(), path)
+
+    @classmethod
+    def load(cls, path: str | Path, extractor: VisualFeatureExtractor | None = None):
+        return cls.from_state_dict(torch.load(path, weights_only=True), extractor)

@@ -1,0 +1,565 @@
+"""Kernel density estimates on SE(3) (and, through the shared base, on R^3 x S^2).
+
+A density is f(x) = sum_i w_i K(x; x_i) over weighted particles x_i = (t_i, u_i) with one
+bandwidth pair (sigma_t, sigma_r); see ``vistask.se3`` for the conventions.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import ClassVar, TypeVar, Union
+
+import torch
+import torch.nn.functional as F
+
+from vistask.se3 import kernels
+from vistask.se3.grid import CellIndex
+from vistask.se3.poses import check_poses
+
+# Kernel blocks of about 2**17 floats (512 KB) stay in cache through the in-place chain and
+# are large enough to amortise per-op overhead (measured best on the 2-core dev machine).
+BLOCK_ELEMENTS = 1 << 17
+
+# Query groups smaller than the radius gather fewer far pairs, at more per-group overhead.
+GROUP_SCALE = 1.0
+
+D = TypeVar("D", bound="KernelDensity")
+Weighting = Union["KernelDensity", Callable[[torch.Tensor], torch.Tensor]]
+
+
+class KernelDensity:
+    """Weighted particles (t_i, u_i), t_i in R^3, u_i a unit vector with u ~ -u, shared bandwidth.
+
+    Subclasses fix the direction space (unit quaternions for SE(3), axial directions on S^2).
+
+    Args:
+        points: (N, 3 + D) particles [t, u].
+        weights: (N,) non-negative weights (normalised internally), or None for uniform.
+        sigma_t: position bandwidth (Gaussian std; the triangular kernel reaches 2 sigma_t).
+        sigma_r: orientation bandwidth in radians (the kernel is about exp(-angle^2 / sigma_r^2)).
+        kernel: position kernel, "gaussian" or "triangular".
+        device: device for the particles (default: that of ``points``).
+    """
+
+    dir_dim: ClassVar[int]
+    point_name: ClassVar[str]
+
+    def __init__(
+        self,
+        points: torch.Tensor,
+        weights: torch.Tensor | None = None,
+        sigma_t: float = 0.01,
+        sigma_r: float = 0.3,
+        kernel: str = "gaussian",
+        device: torch.device | str | None = None,
+    ) -> None:
+        points = self.check_points(points, "points", batched=True)
+        if device is not None:
+            points = points.to(device)
+        if points.shape[0] == 0:
+            raise ValueError("a density needs at least one particle")
+        self.sigma_t, self.sigma_r = kernels.check_bandwidth(sigma_t, sigma_r)
+        self.kernel = kernels.check_kernel(kernel)
+        self.kappa = self.kappa_from_sigma(self.sigma_r)
+        self._points = points
+        self._weights = _normalise_weights(weights, points)
+        self._terms: kernels.PairTerms | None = None
+        self._grids: dict[float, tuple[CellIndex, torch.Tensor, torch.Tensor, torch.Tensor]] = {}
+        self.last_evaluated_pairs: int | None = None
+
+    # --- space-specific hooks -------------------------------------------------------------
+    @classmethod
+    def check_points(cls, points: torch.Tensor, name: str, batched: bool = False) -> torch.Tensor:
+        """Validate (..., 3 + D) points and renormalise their direction part."""
+        raise NotImplementedError
+
+    @staticmethod
+    def kappa_from_sigma(sigma_r: float) -> float:
+        raise NotImplementedError
+
+    @staticmethod
+    def log_direction_normalizer(kappa: float) -> float:
+        raise NotImplementedError
+
+    @staticmethod
+    def direction_angle(u: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
+        """Angle between directions (..., D) x (..., D) -> (...), with u ~ -u."""
+        raise NotImplementedError
+
+    # --- basic properties -----------------------------------------------------------------
+    @property
+    def points(self) -> torch.Tensor:
+        """(N, 3 + D) particles."""
+        return self._points
+
+    @property
+    def weights(self) -> torch.Tensor:
+        """(N,) normalised weights."""
+        return self._weights
+
+    @property
+    def device(self) -> torch.device:
+        return self._points.device
+
+    def __len__(self) -> int:
+        return self._points.shape[0]
+
+    def __repr__(self) -> str:
+        return (
+            f"{type(self).__name__}(n={len(self)}, sigma_t={self.sigma_t:g}, "
+            f"sigma_r={self.sigma_r:g}, kernel={self.kernel!r}, device={self.device})"
+        )
+
+    def effective_sample_size(self) -> float:
+        """Kish's effective sample size 1 / sum w_i^2 of the normalised weights."""
+        return float(1.0 / (self._weights.double() ** 2).sum())
+
+    def log_normalizer(self) -> float:
+        """log of the integral of one kernel over R^3 x (direction space)."""
+        return kernels.log_position_normalizer(
+            self.sigma_t, self.kernel
+        ) + self.log_direction_normalizer(self.kappa)
+
+    def _new(self: D, points: torch.Tensor, weights: torch.Tensor | None, **overrides) -> D:
+        params = {"sigma_t": self.sigma_t, "sigma_r": self.sigma_r, "kernel": self.kernel}
+        params.update({k: v for k, v in overrides.items() if v is not None})
+        return type(self)(points, weights, **params)
+
+    # --- evaluation -------------------------------------------------------------------------
+    def _pair_terms(self) -> kernels.PairTerms:
+        if self._terms is None:
+            t, u = self._points[:, :3], self._points[:, 3:]
+            self._terms = kernels.PairTerms(
+                t, u, self._weights, self.sigma_t, self.kappa, self.kernel
+            )
+        return self._terms
+
+    def _queries(self, points: torch.Tensor) -> tuple[torch.Tensor, tuple[int, ...]]:
+        x = self.check_points(points, "query points")
+        x = x.to(device=self.device, dtype=self._points.dtype)
+        return x.reshape(-1, x.shape[-1]), tuple(x.shape[:-1])
+
+    def evaluate(
+        self,
+        points: torch.Tensor,
+        normalized: bool = False,
+        chunk_size: int | None = None,
+        cutoff: float | None = None,
+    ) -> torch.Tensor:
+        """Density at query points, f(x) = sum_i w_i K(x; x_i).
+
+        Args:
+            points: (..., 3 + D) query points.
+            normalized: divide by the kernel's integral so that f integrates to 1 over
+                R^3 x (direction space) (SO(3) has volume pi^2 under the quaternion metric,
+                S^2 / {v ~ -v} area 2 pi). Unnormalised kernels peak at 1.
+            chunk_size: queries per block (default: blocks of about 2**17 kernel values).
+            cutoff: ignore particles farther than ``cutoff * sigma_t`` in position and use a grid
+                neighbour search so only nearby pairs are evaluated (truncated pairs contribute
+                < 1e-37). None evaluates every pair.
+
+        Returns:
+            (...) density values.
+        """
+        x, batch = self._queries(points)
+        if cutoff is not None and not (math.isfinite(cutoff) and cutoff > 0):
+            raise ValueError(f"cutoff must be a positive number of sigma_t, got {cutoff}")
+        if chunk_size is not None and chunk_size < 1:
+            raise ValueError(f"chunk_size must be >= 1, got {chunk_size}")
+        if cutoff is None:
+            values = self._evaluate_dense(x, chunk_size)
+        else:
+            values = self._evaluate_cutoff(x, chunk_size, cutoff)
+        if normalized:
+            values = values * math.exp(-self.log_normalizer())
+        return values.reshape(batch)
+
+    def __call__(self, points: torch.Tensor, **kwargs) -> torch.Tensor:
+        return self.evaluate(points, **kwargs)
+
+    def _evaluate_dense(self, x: torch.Tensor, chunk_size: int | None) -> torch.Tensor:
+        terms = self._pair_terms()
+        feats, dirs = terms.query_features(x[:, :3], x[:, 3:])
+        n = len(self)
+        chunk = chunk_size or max(1, BLOCK_ELEMENTS // n)
+        chunk = min(chunk, max(1, x.shape[0]))
+        out = torch.empty(x.shape[0], dtype=x.dtype, device=x.device)
+        buf = torch.empty(2, chunk * n, dtype=x.dtype, device=x.device)
+        for a in range(0, x.shape[0], chunk):
+            b = min(a + chunk, x.shape[0])
+            block = kernels.kernel_block(
+                feats[a:b], dirs[a:b], terms.features, terms.u, terms, None, buf[0], buf[1]
+            )
+            torch.mv(block, terms.weights, out=out[a:b])
+        return out
+
+    def _grid(self, radius: float) -> tuple[CellIndex, torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Cell index for a cut-off radius, with particle features in cell-sorted order."""
+        if radius not in self._grids:
+            terms = self._pair_terms()
+            grid = CellIndex(terms.t, radius)
+            perm = grid.perm
+            self._grids[radius] = (
+                grid,
+                terms.features[perm].contiguous(),
+                terms.u[perm].contiguous(),
+                terms.weights[perm].contiguous(),
+            )
+        return self._grids[radius]
+
+    def _evaluate_cutoff(self, x: torch.Tensor, chunk_size: int | None, cutoff: float):
+        terms = self._pair_terms()
+        support = cutoff if self.kernel == "gaussian" else min(cutoff, 2.0)
+        radius = support * self.sigma_t
+        grid, p_feats, p_dirs, p_weights = self._grid(radius)
+        feats, dirs = terms.query_features(x[:, :3], x[:, 3:])
+        tq = x[:, :3] - terms.center
+        # Group queries by cells of GROUP_SCALE * radius: each group shares one neighbour gather.
+        cells = torch.floor((tq - grid.origin) / (GROUP_SCALE * radius)).long()
+        cells = cells - cells.min(dim=0).values
+        dims = (cells.max(dim=0).values + 1).tolist()
+        keys = (cells[:, 0] * dims[1] + cells[:, 1]) * dims[2] + cells[:, 2]
+        order = torch.argsort(keys)
+        counts = torch.unique_consecutive(keys[order], return_counts=True)[1]
+        group = torch.repeat_interleave(torch.arange(counts.numel(), device=x.device), counts)
+        tq_sorted = tq[order]
+        index = group[:, None].expand(-1, 3)
+        inf = torch.full((counts.numel(), 3), math.inf, dtype=x.dtype, device=x.device)
+        box_min = inf.scatter_reduce(0, index, tq_sorted, "amin").tolist()
+        box_max = (-inf).scatter_reduce(0, index, tq_sorted, "amax").tolist()
+        feats, dirs = feats[order], dirs[order]
+        out = torch.zeros(x.shape[0], dtype=x.dtype, device=x.device)
+        buf = torch.empty(2, BLOCK_ELEMENTS, dtype=x.dtype, device=x.device)
+        start, pairs = 0, 0
+        for g, size in enumerate(counts.tolist()):
+            stop, a0 = start + size, start
+            start = stop
+            idx = grid.neighbours(box_min[g], box_max[g])
+            m = idx.numel()
+            if m == 0:
+                continue
+            pairs += size * m
+            g_feats, g_dirs, g_weights = p_feats[idx], p_dirs[idx], p_weights[idx]
+            chunk = chunk_size or max(1, BLOCK_ELEMENTS // m)
+            if buf.shape[1] < min(chunk, size) * m:
+                buf = torch.empty(2, min(chunk, size) * m, dtype=x.dtype, device=x.device)
+            for a in range(a0, stop, chunk):
+                b = min(a + chunk, stop)
+                block = kernels.kernel_block(
+                    feats[a:b], dirs[a:b], g_feats, g_dirs, terms, cutoff, buf[0], buf[1]
+                )
+                torch.mv(block, g_weights, out=out[a:b])
+        # Kept for benchmarks: how many kernel pairs the neighbour search left to evaluate.
+        self.last_evaluated_pairs = pairs
+        result = torch.empty_like(out)
+        result[order] = out
+        return result
+
+    def kernel_matrix(self, points: torch.Tensor, cutoff: float | None = None) -> torch.Tensor:
+        """Unnormalised kernel values K(x_q; x_i) for (Q, 3 + D) queries -> (Q, N), unweighted."""
+        x, _ = self._queries(points)
+        terms = self._pair_terms()
+        feats, dirs = terms.query_features(x[:, :3], x[:, 3:])
+        buf = torch.empty(2, x.shape[0] * len(self), dtype=x.dtype, device=x.device)
+        return kernels.kernel_block(feats, dirs, terms.features, terms.u, terms, cutoff, *buf)
+
+    # --- sampling and reweighting -----------------------------------------------------------
+    def sample(self, n: int, generator: torch.Generator | None = None) -> torch.Tensor:
+        """Draw n points: systematic resampling of particles, then one draw per kernel.
+
+        Args:
+            n: number of samples.
+            generator: torch random generator on the density's device.
+
+        Returns:
+            (n, 3 + D) samples in random order.
+        """
+        if n < 0:
+            raise ValueError(f"n must be non-negative, got {n}")
+        idx = kernels.systematic_resample(self._weights, n, generator)
+        idx = idx[torch.randperm(n, generator=generator, device=self.device)]
+        centers = self._points[idx]
+        t = centers[:, :3] + kernels.sample_position_offsets(
+            n, self.sigma_t, self.kernel, generator, dtype=centers.dtype, device=self.device
+        )
+        u = kernels.sample_axial_vmf(centers[:, 3:], self.kappa, generator)
+        return torch.cat([t, u], dim=1)
+
+    def reweight(self: D, fn: Weighting, proposal: Weighting | None = None) -> D:
+        """Importance reweighting: new weights ∝ w_i fn(x_i) [/ proposal(x_i)].
+
+        Args:
+            fn: a density (its ``evaluate``) or a callable (N, 3 + D) -> (N,) of non-negative
+                values.
+            proposal: optional density or callable the particles were drawn from; the weights
+                are divided by it (classic importance weights target / proposal).
+
+        Returns:
+            a new density with the same particles and bandwidth.
+        """
+        factor = _apply_weighting(fn, self._points, "fn")
+        if proposal is not None:
+            factor = factor / _apply_weighting(proposal, self._points, "proposal")
+        return self._new(self._points, self._weights * factor)
+
+    # --- moments and modes ------------------------------------------------------------------
+    def mean(self) -> torch.Tensor:
+        """(3 + D,) weighted mean position and mean axis (top eigenvector of sum w u u^T)."""
+        t = self._weights @ self._points[:, :3]
+        return torch.cat([t, _principal_axis(self._points[:, 3:], self._weights)])
+
+    def moments(self) -> dict[str, torch.Tensor]:
+        """Mean (3 + D,), position covariance (3, 3) and direction scatter sum w u u^T (D, D)."""
+        t, u, w = self._points[:, :3], self._points[:, 3:], self._weights
+        mean_t = w @ t
+        centred = t - mean_t
+        return {
+            "mean": self.mean(),
+            "position_covariance": (centred * w[:, None]).T @ centred,
+            "direction_scatter": (u * w[:, None]).T @ u,
+        }
+
+    def modes(
+        self,
+        k: int = 1,
+        n_starts: int = 32,
+        n_iter: int = 20,
+        generator: torch.Generator | None = None,
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """Modes by mean shift from resampled particles.
+
+        Args:
+            k: number of distinct modes to return (fewer when fewer are found).
+            n_starts: mean-shift starting points (systematically resampled particles).
+            n_iter: mean-shift iterations.
+            generator: random generator for picking candidate starts.
+
+        Returns:
+            (k', 3 + D) modes sorted by decreasing density, (k',) unnormalised densities there.
+        """
+        # Resampled starts visit every region in proportion to its mass, so minor modes get some.
+        picked = kernels.systematic_resample(self._weights, min(n_starts, len(self)), generator)
+        x = self._points[torch.unique(picked)]
+        u_part = self._points[:, 3:]
+        for _ in range(n_iter):
+            kw = self.kernel_matrix(x) * self._weights
+            total = kw.sum(dim=1, keepdim=True)
+            if not (total > 0).all():
+                break
+            t = (kw @ self._points[:, :3]) / total
+            signed = kw * torch.sign(x[:, 3:] @ u_part.T)
+            u = F.normalize(signed @ u_part, dim=1)
+            x = torch.cat([t, u], dim=1)
+        values = self.evaluate(x)
+        order = torch.argsort(values, descending=True)
+        kept: list[int] = []
+        for i in order.tolist():
+            far = all(
+                (x[i, :3] - x[j, :3]).norm() > 0.5 * self.sigma_t
+                or self.direction_angle(x[i, 3:], x[j, 3:]) > 0.5 * self.sigma_r
+                for j in kept
+            )
+            if far:
+                kept.append(i)
+            if len(kept) == k:
+                break
+        return x[kept], values[kept]
+
+    def mode(self, **kwargs) -> torch.Tensor:
+        """(3 + D,) the highest mode found by ``modes``."""
+        return self.modes(k=1, **kwargs)[0][0]
+
+    @classmethod
+    def fit(
+        cls: type[D],
+        points: torch.Tensor,
+        weights: torch.Tensor | None = None,
+        method: str = "rule",
+        kernel: str = "gaussian",
+        **kwargs,
+    ) -> D:
+        """(N, 3 + D) points -> density, bandwidth from ``bandwidth.select_bandwidth``."""
+        from vistask.se3.bandwidth import select_bandwidth
+
+        sigma_t, sigma_r = select_bandwidth(points, weights, method=method, **kwargs)
+        return cls(points, weights, sigma_t, sigma_r, kernel=kernel)
+
+    # --- persistence and devices ------------------------------------------------------------
+    def state_dict(self) -> dict:
+        return {
+            "type": type(self).__name__,
+            "points": self._points.cpu(),
+            "weights": self._weights.cpu(),
+            "sigma_t": self.sigma_t,
+            "sigma_r": self.sigma_r,
+            "kernel": self.kernel,
+        }
+
+    def save(self, path: str | Path) -> None:
+        """Save particles, weights and bandwidth with torch.save."""
+        torch.save(self.state_dict(), path)
+
+    @classmethod
+    def load(cls: type[D], path: str | Path, device: torch.device | str | None = None) -> D:
+        """Load a density written by ``save``."""
+        state = torch.load(path, map_location="cpu", weights_only=True)
+        if state.get("type") != cls.__name__:
+            raise ValueError(f"{path} holds a {state.get('type')}, not a {cls.__name__}")
+        return cls(
+            state["points"],
+            state["weights"],
+            sigma_t=state["sigma_t"],
+            sigma_r=state["sigma_r"],
+            kernel=state["kernel"],
+            device=device,
+        )
+
+    def to(self: D, device: torch.device | str) -> D:
+        """A copy of the density on ``device``."""
+        return self._new(self._points.to(device), self._weights.to(device))
+
+
+def _normalise_weights(weights: torch.Tensor | None, points: torch.Tensor) -> torch.Tensor:
+    n = points.shape[0]
+    if weights is None:
+        return torch.full((n,), 1.0 / n, dtype=points.dtype, device=points.device)
+    if not isinstance(weights, torch.Tensor):
+        weights = torch.as_tensor(weights)
+    if weights.shape != (n,):
+        raise ValueError(f"weights must have shape ({n},), got {tuple(weights.shape)}")
+    weights = weights.to(dtype=points.dtype, device=points.device)
+    if not torch.isfinite(weights).all() or (weights < 0).any():
+        raise ValueError("weights must be finite and non-negative")
+    total = weights.sum()
+    if not total > 0:
+        raise ValueError("the total weight must be positive (all weights are zero)")
+    return weights / total
+
+
+def _apply_weighting(fn: Weighting, points: torch.Tensor, name: str) -> torch.Tensor:
+    values = fn.evaluate(points) if isinstance(fn, KernelDensity) else fn(points)
+    values = torch.as_tensor(values, dtype=points.dtype, device=points.device)
+    if values.shape != points.shape[:1]:
+        got = tuple(values.shape)
+        raise ValueError(f"{name} must return shape ({points.shape[0]},), got {got}")
+    return values
+
+
+def _principal_axis(u: torch.Tensor, weights: torch.Tensor) -> torch.Tensor:
+    """Top eigenvector of sum_i w_i u_i u_i^T: the sign-invariant mean axis, last entry >= 0."""
+    scatter = (u * weights[:, None]).T @ u
+    axis = torch.linalg.eigh(scatter.double())[1][:, -1].to(u.dtype)
+    return axis if axis[-1] >= 0 else -axis
+
+
+def product(
+    densities: Sequence[D],
+    n: int,
+    generator: torch.Generator | None = None,
+    sigma_t: float | None = None,
+    sigma_r: float | None = None,
+) -> D:
+    """Product of densities by importance sampling.
+
+    Draws n points from the first density and weights each by the values of the others there
+    (the weights are then target / proposal up to a constant).
+
+    Args:
+        densities: two or more densities of the same type.
+        n: number of particles of the result.
+        generator: random generator.
+        sigma_t, sigma_r: bandwidth of the result (default: the first density's).
+
+    Returns:
+        a density with n particles.
+    """
+    if len(densities) < 1:
+        raise ValueError("product needs at least one density")
+    first = densities[0]
+    if any(type(d) is not type(first) for d in densities):
+        raise ValueError("product needs densities of the same type")
+    x = first.sample(n, generator)
+    weights = torch.ones(n, dtype=x.dtype, device=x.device)
+    for other in densities[1:]:
+        weights = weights * other.evaluate(x.to(other.device)).to(x.device)
+    return first._new(x, weights, sigma_t=sigma_t, sigma_r=sigma_r)
+
+
+def mixture(
+    densities: Sequence[D], coefficients: Sequence[float] | torch.Tensor | None = None
+) -> D:
+    """Mixture sum_k c_k f_k of densities with a common bandwidth and kernel.
+
+    Args:
+        densities: densities of the same type, bandwidth and kernel.
+        coefficients: (K,) non-negative mixture coefficients (normalised), default uniform.
+
+    Returns:
+        a density holding all particles.
+    """
+    if len(densities) < 1:
+        raise ValueError("mixture needs at least one density")
+    first = densities[0]
+    for d in densities:
+        same = (d.sigma_t, d.sigma_r, d.kernel) == (first.sigma_t, first.sigma_r, first.kernel)
+        if type(d) is not type(first) or not same:
+            raise ValueError("mixture components must share type, bandwidth and kernel")
+    coef = torch.ones(len(densities)) if coefficients is None else torch.as_tensor(coefficients)
+    coef = coef.to(dtype=first.points.dtype, device=first.device)
+    if coef.shape != (len(densities),):
+        raise ValueError(f"coefficients must have shape ({len(densities)},)")
+    points = torch.cat([d.points.to(first.device) for d in densities])
+    weights = torch.cat(
+        [c * d.weights.to(first.device) for c, d in zip(coef, densities, strict=True)]
+    )
+    return first._new(points, weights)
+
+
+class SE3KDE(KernelDensity):
+    """Kernel density on SE(3): particles are (N, 7) poses [t, qx, qy, qz, qw].
+
+    Kernel: position (Gaussian, or triangular with support 2 sigma_t) times
+    exp(kappa (|q . q_i| - 1)) with kappa = 1 / (1 - cos(sigma_r / 2)) (nuklei).
+    See ``KernelDensity`` for the arguments.
+    """
+
+    dir_dim = 4
+    point_name = "poses"
+
+    @classmethod
+    def check_points(cls, points: torch.Tensor, name: str, batched: bool = False) -> torch.Tensor:
+        return check_poses(points, name, batched=batched)
+
+    @staticmethod
+    def kappa_from_sigma(sigma_r: float) -> float:
+        return kernels.quaternion_kappa(sigma_r)
+
+    @staticmethod
+    def log_direction_normalizer(kappa: float) -> float:
+        return kernels.log_quaternion_normalizer(kappa)
+
+    @staticmethod
+    def direction_angle(u: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
+        return 2.0 * torch.acos((u * v).sum(-1).abs().clamp(max=1.0))
+
+    def project(self, axis: int = 2, sigma_r: float | None = None):
+        """The R^3 x S^2 density of (position, rotated ``axis``) of the particles.
+
+        Args:
+            axis: which column of the rotation matrix (0: x, 1: y, 2: z).
+            sigma_r: direction bandwidth of the result (default: this density's sigma_r).
+
+        Returns:
+            an ``R3S2KDE`` with the same weights and position bandwidth.
+        """
+        from vistask.se3.r3s2 import R3S2KDE, project_se3_to_r3s2
+
+        return R3S2KDE(
+            project_se3_to_r3s2(self._points, axis),
+            self._weights,
+            sigma_t=self.sigma_t,
+            sigma_r=self.sigma_r if sigma_r is None else sigma_r,
+            kernel=self.kernel,
+        )

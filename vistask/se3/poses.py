@@ -1,0 +1,147 @@
+"""Batched rigid-body poses as (..., 7) tensors [tx, ty, tz, qx, qy, qz, qw].
+
+All rotation math goes through roma (XYZW quaternions). Quaternions q and -q denote the same
+rotation; nothing here canonicalises the sign except where stated.
+"""
+
+from __future__ import annotations
+
+import math
+
+import roma
+import torch
+
+UNIT_TOLERANCE = 1e-3
+"""Largest accepted deviation of a quaternion's norm from 1 before a ValueError is raised."""
+
+
+def check_unit(u: torch.Tensor, name: str, tolerance: float = UNIT_TOLERANCE) -> torch.Tensor:
+    """Check that the vectors along the last axis are unit length and renormalise them.
+
+    Args:
+        u: (..., D) vectors (quaternions or directions).
+        name: name used in the error message.
+        tolerance: accepted deviation of the norm from 1.
+
+    Returns:
+        (..., D) the same vectors divided by their norms.
+    """
+    if not torch.isfinite(u).all():
+        raise ValueError(f"{name} contains NaN or infinite values")
+    norms = u.norm(dim=-1, keepdim=True)
+    if u.numel() and (norms - 1.0).abs().max().item() > tolerance:
+        worst = (norms - 1.0).abs().max().item()
+        raise ValueError(
+            f"{name} must be unit vectors (norm within {tolerance} of 1); the worst norm is off by "
+            f"{worst:.3g}"
+        )
+    return u / norms
+
+
+def check_poses(poses: torch.Tensor, name: str = "poses", batched: bool = False) -> torch.Tensor:
+    """Validate poses and return them as a floating tensor with renormalised quaternions.
+
+    Args:
+        poses: (..., 7) poses, or (N, 7) when ``batched``.
+        name: name used in error messages.
+        batched: require exactly two dimensions (N, 7).
+
+    Returns:
+        (..., 7) validated poses.
+    """
+    if not isinstance(poses, torch.Tensor):
+        raise ValueError(f"{name} must be a torch.Tensor, got {type(poses).__name__}")
+    if poses.shape[-1:] != (7,) or (batched and poses.dim() != 2):
+        want = "(N, 7)" if batched else "(..., 7)"
+        got = tuple(poses.shape)
+        raise ValueError(f"{name} must have shape {want} [t, qx, qy, qz, qw], got {got}")
+    if not poses.is_floating_point():
+        poses = poses.float()
+    if not torch.isfinite(poses[..., :3]).all():
+        raise ValueError(f"{name} contains NaN or infinite translations")
+    quat = check_unit(poses[..., 3:], f"{name} quaternions")
+    return torch.cat([poses[..., :3], quat], dim=-1)
+
+
+def make_poses(translation: torch.Tensor, quaternion: torch.Tensor) -> torch.Tensor:
+    """Stack (..., 3) translations and (..., 4) XYZW quaternions into (..., 7) poses."""
+    return torch.cat(_broadcast_batch(translation, quaternion), dim=-1)
+
+
+def _broadcast_batch(*tensors: torch.Tensor) -> list[torch.Tensor]:
+    """Broadcast the batch dimensions (all but the last) of tensors, keeping their last dims."""
+    shape = torch.broadcast_shapes(*(t.shape[:-1] for t in tensors))
+    return [t.expand(*shape, t.shape[-1]) for t in tensors]
+
+
+def identity_poses(*batch: int, dtype: torch.dtype = torch.float32, device=None) -> torch.Tensor:
+    """Identity poses of shape (*batch, 7)."""
+    out = torch.zeros(*batch, 7, dtype=dtype, device=device)
+    out[..., 6] = 1.0
+    return out
+
+
+def random_poses(
+    n: int,
+    translation_scale: float = 1.0,
+    generator: torch.Generator | None = None,
+    dtype: torch.dtype = torch.float32,
+    device=None,
+) -> torch.Tensor:
+    """(n, 7) poses with Gaussian translations (std ``translation_scale``) and uniform rotations."""
+    t = translation_scale * torch.randn(n, 3, generator=generator, dtype=dtype, device=device)
+    q = roma.random_unitquat(n, dtype=dtype, device=device, generator=generator)
+    return torch.cat([t, q], dim=-1)
+
+
+def compose(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """Pose composition a ∘ b (apply b, then a): (..., 7) x (..., 7) -> (..., 7), broadcast."""
+    a, b = _broadcast_batch(a, b)
+    qa = a[..., 3:]
+    t = a[..., :3] + roma.quat_action(qa, b[..., :3], is_normalized=True)
+    return torch.cat([t, roma.quat_product(qa, b[..., 3:])], dim=-1)
+
+
+def inverse(a: torch.Tensor) -> torch.Tensor:
+    """Inverse pose: (..., 7) -> (..., 7) with inverse(a) ∘ a = identity."""
+    q_inv = roma.quat_conjugation(a[..., 3:])
+    return torch.cat([-roma.quat_action(q_inv, a[..., :3], is_normalized=True), q_inv], dim=-1)
+
+
+def relative(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """Pose of b expressed in the frame of a, inverse(a) ∘ b: (..., 7) x (..., 7) -> (..., 7)."""
+    return compose(inverse(a), b)
+
+
+def apply(pose: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
+    """Transform points by poses, R p + t: (..., 7) x (..., 3) -> (..., 3), broadcast."""
+    pose, points = _broadcast_batch(pose, points)
+    return pose[..., :3] + roma.quat_action(pose[..., 3:], points, is_normalized=True)
+
+
+def translation_distance(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """Euclidean distance between translations: (..., 7) x (..., 7) -> (...)."""
+    return (a[..., :3] - b[..., :3]).norm(dim=-1)
+
+
+def rotation_distance(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """Rotation angle in [0, pi] between the rotations of a and b (q and -q alike): -> (...)."""
+    a, b = _broadcast_batch(a, b)
+    return roma.unitquat_geodesic_distance(a[..., 3:], b[..., 3:])
+
+
+def pose_wxyz_to_xyzw(poses: torch.Tensor) -> torch.Tensor:
+    """MuJoCo/robosuite boundary: [t, qw, qx, qy, qz] -> [t, qx, qy, qz, qw], (..., 7)."""
+    return torch.cat([poses[..., :3], roma.quat_wxyz_to_xyzw(poses[..., 3:])], dim=-1)
+
+
+def pose_xyzw_to_wxyz(poses: torch.Tensor) -> torch.Tensor:
+    """[t, qx, qy, qz, qw] -> [t, qw, qx, qy, qz] for MuJoCo/robosuite, (..., 7)."""
+    return torch.cat([poses[..., :3], roma.quat_xyzw_to_wxyz(poses[..., 3:])], dim=-1)
+
+
+wxyz_to_xyzw = roma.quat_wxyz_to_xyzw
+xyzw_to_wxyz = roma.quat_xyzw_to_wxyz
+
+ROTATION_VOLUME = math.pi**2
+"""Volume of SO(3) = S^3 / {q ~ -q} under the unit-quaternion metric used for normalisation."""

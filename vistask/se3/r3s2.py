@@ -1,0 +1,66 @@
+"""Kernel densities on R^3 x S^2 with axial directions (v ~ -v), e.g. edge observations whose
+roll about the edge is undetermined, and the projection SE(3) -> R^3 x S^2.
+"""
+
+from __future__ import annotations
+
+import roma
+import torch
+
+from vistask.se3 import kernels
+from vistask.se3.kde import KernelDensity
+from vistask.se3.poses import check_poses, check_unit
+
+
+def check_r3s2(points: torch.Tensor, name: str = "points", batched: bool = False) -> torch.Tensor:
+    """Validate (..., 6) points [t, v] (v a unit direction) and renormalise v."""
+    if not isinstance(points, torch.Tensor):
+        raise ValueError(f"{name} must be a torch.Tensor, got {type(points).__name__}")
+    if points.shape[-1:] != (6,) or (batched and points.dim() != 2):
+        want = "(N, 6)" if batched else "(..., 6)"
+        raise ValueError(f"{name} must have shape {want} [t, v], got {tuple(points.shape)}")
+    if not points.is_floating_point():
+        points = points.float()
+    if not torch.isfinite(points[..., :3]).all():
+        raise ValueError(f"{name} contains NaN or infinite positions")
+    return torch.cat([points[..., :3], check_unit(points[..., 3:], f"{name} directions")], dim=-1)
+
+
+def project_se3_to_r3s2(poses: torch.Tensor, axis: int = 2) -> torch.Tensor:
+    """(..., 7) poses -> (..., 6) [t, R e_axis]: position and one axis of the rotation."""
+    if axis not in (0, 1, 2):
+        raise ValueError(f"axis must be 0, 1 or 2, got {axis}")
+    poses = check_poses(poses)
+    basis = torch.zeros(3, dtype=poses.dtype, device=poses.device)
+    basis[axis] = 1.0
+    quat = poses[..., 3:]
+    direction = roma.quat_action(quat, basis.expand(*quat.shape[:-1], 3), is_normalized=True)
+    return torch.cat([poses[..., :3], direction], dim=-1)
+
+
+class R3S2KDE(KernelDensity):
+    """Kernel density on R^3 x S^2 with axial directions: particles are (N, 6) [t, v].
+
+    Kernel: position (Gaussian or triangular) times exp(kappa (|v . v_i| - 1)) with
+    kappa = 1 / (1 - cos sigma_r); normalised over R^3 x S^2 / {v ~ -v} (area 2 pi). Sampling
+    uses Wood's algorithm on S^2 with a random sign. See ``KernelDensity`` for the arguments.
+    """
+
+    dir_dim = 3
+    point_name = "points"
+
+    @classmethod
+    def check_points(cls, points: torch.Tensor, name: str, batched: bool = False) -> torch.Tensor:
+        return check_r3s2(points, name, batched=batched)
+
+    @staticmethod
+    def kappa_from_sigma(sigma_r: float) -> float:
+        return kernels.direction_kappa(sigma_r)
+
+    @staticmethod
+    def log_direction_normalizer(kappa: float) -> float:
+        return kernels.log_direction_normalizer(kappa)
+
+    @staticmethod
+    def direction_angle(u: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
+        return torch.acos((u * v).sum(-1).abs().clamp(max=1.0))

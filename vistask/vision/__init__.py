@@ -1,0 +1,37 @@
+"""3-D oriented appearance patches from RGB-D images (the "ECV-like" front end).
+
+Conventions: OpenCV images and cameras (see ``camera``); poses (..., 7) are
+``[tx, ty, tz, qx, qy, qz, qw]`` (roma XYZW), frame -> world.
+"""
+
+from vistask.vision.camera import (
+    Camera,
+    RGBDView,
+    backproject,
+    depth_buffer_to_metres,
+    intrinsics_from_fovy,
+    look_at,
+    pixel_grid,
+    project,
+)
+from vistask.vision.patches import PatchConfig, Patches, extract_patches
+from vistask.vision.symmetry import Symmetry, pose_error
+from vistask.vision.views import object_patch_set, view_patches
+
+__all__ = [
+    "Camera",
+    "PatchConfig",
+    "Patches",
+    "RGBDView",
+    "Symmetry",
+    "backproject",
+    "depth_buffer_to_metres",
+    "extract_patches",
+    "intrinsics_from_fovy",
+    "look_at",
+    "object_patch_set",
+    "pixel_grid",
+    "pose_error",
+    "project",
+    "view_patches",
+]

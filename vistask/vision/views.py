@@ -1,0 +1,79 @@
+"""Patches of one object from several views, merged in the object's frame."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import replace
+
+from torch import Tensor
+
+from vistask.vision.camera import RGBDView
+from vistask.vision.patches import PatchConfig, Patches, extract_patches
+
+
+def view_patches(
+    view: RGBDView,
+    label: int | None = None,
+    config: PatchConfig | None = None,
+    device: str | None = None,
+) -> Patches:
+    """World-frame patches of a view, restricted to object ``label`` when given.
+
+    Args:
+        view: an RGB-D view (with segmentation when ``label`` is given).
+        label: segmentation label of the object to isolate, or None for the whole image.
+        config: extraction parameters.
+        device: device of the returned tensors.
+
+    Raises:
+        ValueError: the object is not visible, or no patch was found.
+    """
+    mask = None if label is None else view.mask(label)
+    return extract_patches(
+        view.rgb, view.depth, view.camera, mask=mask, config=config, device=device
+    )
+
+
+def object_patch_set(
+    views: Sequence[RGBDView],
+    object_poses: Tensor,
+    label: int = 0,
+    config: PatchConfig | None = None,
+    voxel: float | None = None,
+    device: str | None = None,
+) -> Patches:
+    """Merge one object's patches from several views into its own frame.
+
+    Each view may show the object at a different pose (object rotated between shots) or
+    from a different camera; the simulator's ground-truth pose maps every patch into the
+    object frame. Views where the object is not visible are skipped.
+
+    Args:
+        views: V views with segmentation.
+        object_poses: (V, 7) world pose of the object in each view.
+        label: the object's segmentation label.
+        config: extraction parameters.
+        voxel: if given, keep one patch per voxel of this side (metres) after merging.
+        device: device of the returned tensors.
+
+    Returns:
+        Patches in the object frame (no ``pixels``).
+
+    Raises:
+        ValueError: mismatched inputs, or no patch in any view.
+    """
+    if object_poses.dim() != 2 or object_poses.shape != (len(views), 7):
+        raise ValueError(
+            f"object_poses must have shape ({len(views)}, 7), got {tuple(object_poses.shape)}"
+        )
+    parts: list[Patches] = []
+    for view, pose in zip(views, object_poses, strict=True):
+        try:
+            patches = view_patches(view, label, config, device)
+        except ValueError:
+            continue  # object hidden in this view
+        parts.append(patches.to_frame(pose))
+    if not parts:
+        raise ValueError(f"object {label} yields no patch in any of the {len(views)} views")
+    merged = replace(Patches.cat(parts), pixels=None)
+    return merged if voxel is None else merged.voxel_downsample(voxel)
