@@ -13,9 +13,12 @@ from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sp
+from gymnasium.utils import seeding
 from vistask.envs.visual_maze import MazeGeometry, VisualMazeEnv
 
-Policy = Callable[[np.ndarray, dict], int]
+# A batched policy: (percepts (n, H, W, 3) uint8, true positions (n, 2)) -> (n,) actions.
+# Positions are for oracles and plots; a visual agent must ignore them.
+Policy = Callable[[np.ndarray, np.ndarray], np.ndarray]
 
 
 @dataclass
@@ -111,8 +114,8 @@ class MazeOracle:
         return self.policy[self.cell(points)]
 
     def as_policy(self) -> Policy:
-        """The oracle as a ``Policy`` for ``evaluate_policy`` (reads ``info["position"]``)."""
-        return lambda obs, info: int(self.act(info["position"])[0])
+        """The oracle as a ``Policy`` for ``evaluate_policy`` (reads the true positions)."""
+        return lambda percepts, positions: self.act(positions)
 
 
 def _cell_index(geometry: MazeGeometry, grid: int, points: np.ndarray) -> np.ndarray:
@@ -160,14 +163,17 @@ def evaluate_policy(
     max_steps: int = 100,
     seed: int = 0,
 ) -> EvaluationResult:
-    """Run ``policy`` once from each start and return the discounted returns.
+    """Run ``policy`` once from each start, all episodes in lockstep, and return the
+    discounted returns.
 
-    Episode i is reset with noise seed ``seed + i``, so two policies that act alike see the same
-    noise: differences between methods are not drowned in sampling noise.
+    Episode i draws its noise from its own generator seeded ``seed + i``, exactly as
+    ``env.reset(seed=seed + i)`` followed by ``env.step`` would, so two policies that act
+    alike see the same noise, and a batched policy (feature extraction for all live episodes
+    at once) is scored as if each episode ran alone.
 
     Args:
         env: a visual maze (``gym.make("vistask/VisualMaze-v0")`` or the raw class).
-        policy: ``policy(obs, info) -> action``; ``info["position"]`` is for oracles only.
+        policy: batched ``policy(percepts, positions) -> actions`` (see ``Policy``).
         starts: (n, 2) start positions (default ``start_positions(geometry)``).
         max_steps: episode cut-off (gamma^100 is negligible).
         seed: base noise seed.
@@ -175,15 +181,24 @@ def evaluate_policy(
     maze = env.unwrapped
     if not isinstance(maze, VisualMazeEnv):
         raise TypeError(f"evaluate_policy needs a VisualMazeEnv, got {type(maze).__name__}")
-    starts = start_positions(maze.geometry) if starts is None else np.asarray(starts)
-    gamma = maze.geometry.gamma
-    returns, steps = np.zeros(len(starts)), np.zeros(len(starts), int)
-    for i, start in enumerate(starts):
-        obs, info = maze.reset(seed=seed + i, options={"position": start})
-        for t in range(max_steps):
-            obs, reward, terminated, _, info = maze.step(policy(obs, info))
-            returns[i] += gamma**t * reward
-            if terminated:
-                break
-        steps[i] = t + 1
+    geometry = maze.geometry
+    positions = start_positions(geometry) if starts is None else np.array(starts, dtype=float)
+    if positions.ndim != 2 or positions.shape[1] != 2 or not geometry.is_free(positions).all():
+        raise ValueError("starts must be an (n, 2) array of free positions")
+    n = len(positions)
+    rngs = [seeding.np_random(seed + i)[0] for i in range(n)]  # as env.reset(seed=seed + i)
+    returns, steps = np.zeros(n), np.full(n, max_steps)
+    live = np.arange(n)
+    for t in range(max_steps):
+        percepts = np.stack([maze.percept_at(p) for p in positions[live]])
+        actions = np.asarray(policy(percepts, positions[live].copy())).astype(int).reshape(-1)
+        if len(actions) != len(live) or actions.min() < 0 or actions.max() >= 4:
+            raise ValueError(f"policy must return {len(live)} actions in 0..3, got {actions}")
+        noise = np.concatenate([rngs[i].standard_normal((1, 2)) for i in live])
+        positions[live], exited = geometry.move(positions[live], actions, noise)
+        returns[live[exited]] = geometry.gamma**t * geometry.reward
+        steps[live[exited]] = t + 1
+        live = live[~exited]
+        if len(live) == 0:
+            break
     return EvaluationResult(returns, steps)

@@ -1,6 +1,6 @@
 """Image -> visual features: local descriptors at interest points and a learned vocabulary."""
 
-from vistask.features.keypoints import Keypoints, SiftExtractor, check_image
+from vistask.features.keypoints import Keypoints, SiftExtractor, check_image, check_image_space
 from vistask.features.vocabulary import Occurrences, VisualFeatureExtractor, kmeans
 
 __all__ = [
@@ -9,5 +9,6 @@ __all__ = [
     "SiftExtractor",
     "VisualFeatureExtractor",
     "check_image",
+    "check_image_space",
     "kmeans",
 ]

@@ -43,6 +43,21 @@ def check_image(image: np.ndarray) -> np.ndarray:
     return image
 
 
+def check_image_space(space, user: str) -> None:
+    """Raise a clear error unless the Gymnasium ``space`` holds (H, W, 3) uint8 images."""
+    from gymnasium import spaces
+
+    if not (
+        isinstance(space, spaces.Box)
+        and space.dtype == np.uint8
+        and len(space.shape) == 3
+        and space.shape[2] == 3
+    ):
+        raise TypeError(
+            f"{user} needs (H, W, 3) uint8 image observations, got observation space {space}"
+        )
+
+
 class SiftExtractor:
     """SIFT keypoints and descriptors (optionally with colour), one image or a batch.
 

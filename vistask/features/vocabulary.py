@@ -54,6 +54,36 @@ def kmeans(x: torch.Tensor, k: int, iters: int = 20, seed: int = 0) -> torch.Ten
     return centroids
 
 
+def _assign(
+    x: torch.Tensor,
+    centroids: torch.Tensor,
+    soft_ratio: float = 1.0,
+    max_distance: float | None = None,
+    neighbours: int = 4,
+    chunk: int = 8192,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Words of each descriptor: the nearest prototype, plus (soft assignment) up to
+    ``neighbours`` prototypes within ``soft_ratio`` times the nearest distance.
+
+    Returns (descriptor index (P,), word (P,)) pairs, ordered by descriptor.
+    """
+    c_sq = (centroids * centroids).sum(1)
+    k = min(neighbours if soft_ratio > 1 else 1, len(centroids))
+    rows, words = [], []
+    for s in range(0, len(x), chunk):
+        block = x[s : s + chunk]
+        d = torch.addmm(c_sq, block, centroids.T, alpha=-2.0)
+        d += (block * block).sum(1, keepdim=True)
+        dist, index = d.clamp_min_(0).topk(k, dim=1, largest=False)
+        keep = dist <= dist[:, :1] * soft_ratio**2
+        if max_distance is not None:
+            keep &= dist <= max_distance**2
+        r, c = keep.nonzero(as_tuple=True)
+        rows.append(r + s)
+        words.append(index[r, c])
+    return torch.cat(rows), torch.cat(words)
+
+
 @dataclass
 class Occurrences:
     """Visual features found in one image: ``words`` (K,) feature ids, ``xy`` (K, 2) pixels."""
@@ -74,6 +104,9 @@ class VisualFeatureExtractor:
         keypoints: the local-descriptor extractor.
         centroids: (F, D) prototype descriptors.
         max_distance: descriptors farther than this from every prototype are ignored (None: never).
+        soft_ratio: a descriptor also shows the prototypes within ``soft_ratio`` times its
+            nearest distance (1: nearest only). Small shifts of the window perturb descriptors,
+            and soft assignment keeps a feature present where a hard one would flip.
     """
 
     def __init__(
@@ -81,6 +114,7 @@ class VisualFeatureExtractor:
         keypoints: SiftExtractor,
         centroids: torch.Tensor,
         max_distance: float | None = None,
+        soft_ratio: float = 1.0,
     ) -> None:
         if centroids.ndim != 2 or centroids.shape[1] != keypoints.descriptor_size:
             raise ValueError(
@@ -89,6 +123,9 @@ class VisualFeatureExtractor:
         self.keypoints = keypoints
         self.centroids = centroids.float().contiguous()
         self.max_distance = max_distance
+        if soft_ratio < 1:
+            raise ValueError(f"soft_ratio must be >= 1, got {soft_ratio}")
+        self.soft_ratio = float(soft_ratio)
 
     @property
     def n_features(self) -> int:
@@ -99,7 +136,7 @@ class VisualFeatureExtractor:
         """Short hash of the vocabulary and extractor settings (checked when loading trees)."""
         h = hashlib.sha1(self.centroids.cpu().numpy().tobytes())
         h.update(repr(sorted(self.keypoints.config().items())).encode())
-        h.update(repr(self.max_distance).encode())
+        h.update(repr((self.max_distance, self.soft_ratio)).encode())
         return h.hexdigest()[:16]
 
     @classmethod
@@ -112,6 +149,7 @@ class VisualFeatureExtractor:
         max_descriptors: int = 60_000,
         iters: int = 15,
         max_distance: float | None = None,
+        soft_ratio: float = 1.0,
         seed: int = 0,
     ) -> VisualFeatureExtractor:
         """Learn the vocabulary by k-means over descriptors of sample percepts.
@@ -123,7 +161,7 @@ class VisualFeatureExtractor:
             detected: keypoints already extracted from the sample percepts.
             max_descriptors: random subset of descriptors used by k-means (speed).
             iters: k-means iterations.
-            max_distance: see the class.
+            max_distance, soft_ratio: see the class.
             seed: seed of the subset and of the k-means initialisation.
         """
         keypoints = keypoints or SiftExtractor()
@@ -143,35 +181,35 @@ class VisualFeatureExtractor:
                 f"only {len(x)} descriptors in the sample percepts for {n_words} words: "
                 "use more sample percepts or fewer words"
             )
-        return cls(keypoints, kmeans(x, n_words, iters, seed), max_distance)
+        return cls(keypoints, kmeans(x, n_words, iters, seed), max_distance, soft_ratio)
 
-    def words(self, detected: Sequence[Keypoints]) -> list[np.ndarray]:
-        """Feature id of every keypoint of every image (-1 beyond ``max_distance``)."""
-        sizes = [len(k) for k in detected]
-        if sum(sizes) == 0:
-            return [np.zeros(0, np.int64) for _ in detected]
+    def words(self, detected: Sequence[Keypoints]) -> list[tuple[np.ndarray, np.ndarray]]:
+        """Per image, (keypoint index (P,), feature id (P,)) pairs: every keypoint's words."""
+        sizes = np.array([len(k) for k in detected])
+        if sizes.sum() == 0:
+            return [(np.zeros(0, np.int64), np.zeros(0, np.int64)) for _ in detected]
         x = torch.from_numpy(np.concatenate([k.descriptors for k in detected]))
-        index, dist = _nearest(x, self.centroids)
-        if self.max_distance is not None:
-            index[dist > self.max_distance**2] = -1
-        return list(np.split(index.numpy(), np.cumsum(sizes)[:-1]))
+        rows, words = _assign(x, self.centroids, self.soft_ratio, self.max_distance)
+        image = np.repeat(np.arange(len(detected)), sizes)[rows.numpy()]
+        local = rows.numpy() - (np.cumsum(sizes) - sizes)[image]
+        bounds = np.searchsorted(image, np.arange(1, len(detected)))
+        return list(zip(np.split(local, bounds), np.split(words.numpy(), bounds), strict=True))
 
     def occurrences(self, images: Sequence[np.ndarray]) -> list[Occurrences]:
         """Features and keypoint positions of each image (what compound features need)."""
         detected = self.keypoints.batch(images)
         return [
-            Occurrences(w[w >= 0], k.xy[w >= 0])
-            for w, k in zip(self.words(detected), detected, strict=True)
+            Occurrences(words, k.xy[index])
+            for (index, words), k in zip(self.words(detected), detected, strict=True)
         ]
 
     def presence_of(self, detected: Sequence[Keypoints]) -> torch.Tensor:
         """(N, F) bool presence matrix of already extracted keypoints."""
-        words = self.words(detected)
-        rows = np.repeat(np.arange(len(words)), [len(w) for w in words])
-        cols = np.concatenate(words) if words else np.zeros(0, np.int64)
-        keep = cols >= 0
-        presence = torch.zeros(len(words), self.n_features, dtype=torch.bool)
-        presence[torch.from_numpy(rows[keep]), torch.from_numpy(cols[keep])] = True
+        pairs = self.words(detected)
+        rows = np.repeat(np.arange(len(pairs)), [len(w) for _, w in pairs])
+        cols = np.concatenate([w for _, w in pairs])
+        presence = torch.zeros(len(pairs), self.n_features, dtype=torch.bool)
+        presence[torch.from_numpy(rows), torch.from_numpy(cols)] = True
         return presence
 
     def presence(self, images: Sequence[np.ndarray]) -> torch.Tensor:
@@ -187,11 +225,17 @@ class VisualFeatureExtractor:
             "keypoints": self.keypoints.config(),
             "centroids": self.centroids.cpu(),
             "max_distance": self.max_distance,
+            "soft_ratio": self.soft_ratio,
         }
 
     @classmethod
     def from_state_dict(cls, state: dict) -> VisualFeatureExtractor:
-        return cls(SiftExtractor(**state["keypoints"]), state["centroids"], state["max_distance"])
+        return cls(
+            SiftExtractor(**state["keypoints"]),
+            state["centroids"],
+            state["max_distance"],
+            state["soft_ratio"],
+        )
 
     def save(self, path: str | Path) -> None:
         torch.save(self.state_dict(), path)

@@ -1,1 +1,53 @@
-"""Placeholder package; filled by its issue."""
+"""Grasp densities: eq. (8), hypothesis densities and trial-and-error learning (paper 3.4-3.5).
+
+Grasps are (..., 7) gripper poses [t, qx, qy, qz, qw] (see ``vistask.se3``); the gripper frame
+has its origin between the fingertip pads, +z the approach direction and +x the closing axis.
+Grasp densities attached to object models live in the object frame.
+"""
+
+from vistask.grasp.density import instance_grasp_density, transform_density
+from vistask.grasp.hypothesis import (
+    demonstration_density,
+    feature_grasps,
+    feature_hypothesis_density,
+    frames_to_poses,
+    scripted_teacher_grasps,
+)
+from vistask.grasp.learning import (
+    CycleStats,
+    GraspLearner,
+    TrialRunner,
+    Trials,
+    Workspace,
+    approach_directions,
+    draw_reachable,
+    empirical_density,
+    evaluate_density,
+    importance_weights,
+    mixture_proposal,
+    reachable,
+    run_trials,
+)
+
+__all__ = [
+    "CycleStats",
+    "GraspLearner",
+    "TrialRunner",
+    "Trials",
+    "Workspace",
+    "approach_directions",
+    "demonstration_density",
+    "draw_reachable",
+    "empirical_density",
+    "evaluate_density",
+    "feature_grasps",
+    "feature_hypothesis_density",
+    "frames_to_poses",
+    "importance_weights",
+    "instance_grasp_density",
+    "mixture_proposal",
+    "reachable",
+    "run_trials",
+    "scripted_teacher_grasps",
+    "transform_density",
+]

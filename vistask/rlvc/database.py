@@ -16,7 +16,7 @@ import gymnasium as gym
 import numpy as np
 import torch
 
-from vistask.features import Keypoints, VisualFeatureExtractor
+from vistask.features import Keypoints, VisualFeatureExtractor, check_image_space
 
 # An exploration policy maps (observation, rng) to an action id.
 ExplorationPolicy = Callable[[np.ndarray, np.random.Generator], int]
@@ -25,16 +25,7 @@ ExplorationPolicy = Callable[[np.ndarray, np.random.Generator], int]
 def check_image_env(env: gym.Env) -> None:
     """Raise a clear error unless ``env`` has (H, W, 3) uint8 image observations and
     ``Discrete`` actions, which is what RLVC needs."""
-    space = env.observation_space
-    if not (
-        isinstance(space, gym.spaces.Box)
-        and space.dtype == np.uint8
-        and len(space.shape) == 3
-        and space.shape[2] == 3
-    ):
-        raise TypeError(
-            f"RLVC needs (H, W, 3) uint8 image observations, got observation space {space}"
-        )
+    check_image_space(env.observation_space, "RLVC")
     if not isinstance(env.action_space, gym.spaces.Discrete):
         raise TypeError(f"RLVC needs a Discrete action space, got {env.action_space}")
 

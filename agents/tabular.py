@@ -1,0 +1,128 @@
+"""Tabular Q-learning on any environment with ``Discrete`` observations."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+import torch
+from tqdm.auto import tqdm
+
+
+class TabularQAgent:
+    """Epsilon-greedy tabular Q-learning with an SB3-like API.
+
+    Example:
+        >>> env = VisualClasses(gym.make("vistask/VisualMaze-v0"), classifier)
+        >>> agent = TabularQAgent(env, seed=0).learn(total_timesteps=20_000)
+        >>> action, _ = agent.predict(obs, deterministic=True)
+        >>> agent.save("q.pt"); TabularQAgent.load("q.pt", env)
+
+    Args:
+        env: environment with ``Discrete`` observation and action spaces.
+        learning_rate: step size of the Q update.
+        gamma: discount (default: ``env.unwrapped.gamma`` if the env exposes one, else 0.99).
+        epsilon: exploration rate of the behaviour policy.
+        initial_q: initial Q values (optimism drives exploration when rewards are positive).
+        seed: seeds the behaviour policy and the first reset.
+    """
+
+    def __init__(
+        self,
+        env: gym.Env | None,
+        learning_rate: float = 0.2,
+        gamma: float | None = None,
+        epsilon: float = 0.2,
+        initial_q: float = 0.0,
+        seed: int = 0,
+        n_states: int | None = None,
+        n_actions: int | None = None,
+    ) -> None:
+        if env is not None:
+            if not isinstance(env.observation_space, gym.spaces.Discrete):
+                raise TypeError(
+                    "TabularQAgent needs a Discrete observation space, got "
+                    f"{env.observation_space}; wrap image envs with VisualClasses"
+                )
+            if not isinstance(env.action_space, gym.spaces.Discrete):
+                raise TypeError(f"TabularQAgent needs Discrete actions, got {env.action_space}")
+            n_states, n_actions = int(env.observation_space.n), int(env.action_space.n)
+            gamma = gamma if gamma is not None else getattr(env.unwrapped, "gamma", 0.99)
+        if n_states is None or n_actions is None:
+            raise ValueError("pass an env, or n_states and n_actions")
+        if not 0 < learning_rate <= 1 or not 0 <= epsilon <= 1:
+            raise ValueError("learning_rate must be in (0, 1] and epsilon in [0, 1]")
+        self.env = env
+        self.learning_rate, self.epsilon, self.seed = learning_rate, epsilon, seed
+        self.gamma = 0.99 if gamma is None else float(gamma)
+        self.q = np.full((n_states, n_actions), float(initial_q))
+        self.num_timesteps = 0
+        self.rng = np.random.default_rng(seed)
+
+    def learn(self, total_timesteps: int, progress_bar: bool = False) -> TabularQAgent:
+        """Run Q-learning for ``total_timesteps`` environment steps."""
+        if self.env is None:
+            raise ValueError("this agent has no env: pass one to load(path, env)")
+        env, q = self.env, self.q
+        obs, _ = env.reset(seed=self.seed if self.num_timesteps == 0 else None)
+        for _ in tqdm(range(total_timesteps), disable=not progress_bar, desc="Q-learning"):
+            if self.rng.random() < self.epsilon:
+                action = int(self.rng.integers(q.shape[1]))
+            else:
+                action = self._greedy(obs)
+            next_obs, reward, terminated, truncated, _ = env.step(action)
+            target = reward + (0.0 if terminated else self.gamma * q[next_obs].max())
+            q[obs, action] += self.learning_rate * (target - q[obs, action])
+            self.num_timesteps += 1
+            obs = next_obs
+            if terminated or truncated:
+                obs, _ = env.reset()
+        return self
+
+    def _greedy(self, state: int) -> int:
+        row = self.q[state]
+        # Random tie-breaking: with an all-equal row, argmax would always pick action 0.
+        return int(self.rng.choice(np.flatnonzero(row == row.max())))
+
+    def predict(self, observation, state=None, episode_start=None, deterministic: bool = True):
+        """SB3's signature: returns (action or actions, None) for one state id or a batch."""
+        states = np.asarray(observation, dtype=np.int64)
+        if states.min(initial=0) < 0 or states.max(initial=0) >= len(self.q):
+            raise ValueError(f"state ids must lie in 0..{len(self.q) - 1}, got {observation}")
+        actions = self.q[states.reshape(-1)].argmax(axis=1)
+        if not deterministic:
+            explore = self.rng.random(len(actions)) < self.epsilon
+            actions[explore] = self.rng.integers(self.q.shape[1], size=int(explore.sum()))
+        return (actions.reshape(states.shape), None)
+
+    def save(self, path: str | Path) -> None:
+        torch.save(
+            {
+                "q": torch.from_numpy(self.q),
+                "learning_rate": self.learning_rate,
+                "gamma": self.gamma,
+                "epsilon": self.epsilon,
+                "seed": self.seed,
+                "num_timesteps": self.num_timesteps,
+            },
+            path,
+        )
+
+    @classmethod
+    def load(cls, path: str | Path, env: gym.Env | None = None) -> TabularQAgent:
+        state = torch.load(path, weights_only=True)
+        q = state["q"].numpy()
+        agent = cls(
+            None,
+            state["learning_rate"],
+            state["gamma"],
+            state["epsilon"],
+            seed=state["seed"],
+            n_states=q.shape[0],
+            n_actions=q.shape[1],
+        )
+        if env is not None and (env.observation_space.n, env.action_space.n) != q.shape:
+            raise ValueError(f"env spaces do not match the saved Q table of shape {q.shape}")
+        agent.env, agent.q, agent.num_timesteps = env, q, state["num_timesteps"]
+        return agent

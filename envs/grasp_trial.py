@@ -1,0 +1,605 @@
+"""One grasp attempt per episode with a robosuite Panda arm (``vistask/GraspTrial-v0``).
+
+``reset`` puts one object (optionally with distractors) at a random pose on the table and
+returns the scene as seen by RGB-D cameras; ``step(grasp)`` executes one parallel-jaw grasp
+at a 6-DoF gripper pose through robosuite's operational-space controller (OSC_POSE,
+absolute targets in the world frame) and ends the episode: open, go to the pre-grasp pose
+backed off along the approach axis, approach, close, lift, hold. Reward 1 if the object
+ends at least ``lift_threshold`` above where it lay while both fingers still touch it.
+
+Conventions (see ``vistask.se3``): a grasp is a (7,) pose [tx, ty, tz, qx, qy, qz, qw]
+(roma XYZW) of the gripper frame in the world. The gripper frame is robosuite's Panda
+``grip_site``: origin midway between the fingertip pads, +z the approach direction (from
+the palm towards the fingertips), +x the axis along which the fingers close. The two fingers
+are interchangeable, so a grasp and the grasp turned by 180 degrees about its approach axis
+are the same; the arm executes whichever of the two needs less wrist rotation. Object poses
+are the object body's pose in the world; MuJoCo's WXYZ is converted here, at the boundary.
+
+Observations are a Dict of fixed-shape arrays per camera ``c``: ``c_rgb`` (H, W, 3) uint8,
+``c_depth`` (H, W) float32 z-depth in metres, ``c_segmentation`` (H, W) int32 (0 the
+target, 1.. distractors, -1 anything else, robot included), ``c_intrinsics`` (3, 3) and
+``c_extrinsics`` (4, 4) camera-to-world (OpenCV axes), plus ``eef_pose`` (7,). The 3-D
+patches of the front end vary in number, so they are not part of the Dict space:
+``GraspTrialEnv.patches(obs)`` (or ``observation_views`` + ``vistask.vision``) computes
+them on demand. The object's ground-truth pose is in ``info["object_pose"]`` only.
+With ``cameras=()`` no image is rendered, which is what trial-and-error learning with
+ground-truth poses uses (rendering costs more than a grasp at small control rates).
+"""
+
+from __future__ import annotations
+
+import functools
+import logging
+import math
+import os
+import time
+from collections.abc import Callable, Sequence
+from typing import Any, ClassVar
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+
+import gymnasium as gym
+import mujoco
+import numpy as np
+import torch
+from gymnasium import spaces
+from robosuite.controllers import load_composite_controller_config
+from robosuite.environments.manipulation.manipulation_env import ManipulationEnv
+from robosuite.models.arenas import TableArena
+from robosuite.models.objects import BoxObject, MujocoObject
+from robosuite.models.tasks import ManipulationTask
+from scipy.spatial.transform import Rotation, Slerp
+from vistask.envs.tabletop import CAMERAS, OBJECTS, TABLE_SIZE, TABLE_TOP_Z
+
+from vistask.grasp.learning import Workspace
+from vistask.vision import (
+    Camera,
+    PatchConfig,
+    Patches,
+    RGBDView,
+    depth_buffer_to_metres,
+    intrinsics_from_fovy,
+    look_at,
+    view_patches,
+)
+
+# robosuite logs every controller-config load at INFO level; one line per trial env is noise.
+logging.getLogger("robosuite_logs").setLevel(logging.WARNING)
+
+_MJ_TO_CV = np.diag([1.0, -1.0, -1.0])
+PANDA_MAX_OPENING = 0.08  # metres between the fingertip pads, fully open
+
+# Objects the Panda's 8 cm gripper can hold; the cube is robosuite's Lift cube.
+GRASP_OBJECTS: dict[str, Callable[[str], MujocoObject]] = {
+    "cube": lambda name: BoxObject(name, size=(0.021, 0.021, 0.021), rgba=(0.8, 0.15, 0.1, 1.0)),
+    **{k: OBJECTS[k].make for k in ("box", "can", "milk", "bread", "cereal")},
+}
+
+
+def check_grasp(grasp: Any, tolerance: float = 1e-3) -> np.ndarray:
+    """Validate one grasp pose and return it as a float64 array with a renormalised quaternion.
+
+    Args:
+        grasp: (7,) [tx, ty, tz, qx, qy, qz, qw] array-like.
+        tolerance: allowed deviation of the quaternion norm from 1.
+
+    Raises:
+        ValueError: wrong shape, non-finite entries, or a quaternion that is not unit length.
+    """
+    g = np.asarray(grasp.detach().cpu() if isinstance(grasp, torch.Tensor) else grasp)
+    if g.shape != (7,):
+        raise ValueError(f"a grasp must have shape (7,) [t, qx, qy, qz, qw], got {g.shape}")
+    if not np.issubdtype(g.dtype, np.number):
+        raise ValueError(f"a grasp must be numeric, got dtype {g.dtype}")
+    g = g.astype(np.float64)
+    if not np.isfinite(g).all():
+        raise ValueError(f"a grasp must be finite, got {g}")
+    norm = np.linalg.norm(g[3:])
+    if abs(norm - 1.0) > tolerance:
+        raise ValueError(f"the grasp quaternion must have unit norm, got norm {norm:.6f}")
+    g[3:] /= norm
+    return g
+
+
+class _GraspScene(ManipulationEnv):
+    """A Panda at the table with one instance of each object kind in ``kinds``.
+
+    Objects are placed by ``GraspTrialEnv`` after robosuite's reset; extra cameras come from
+    ``vistask.envs.tabletop.CAMERAS``.
+    """
+
+    def __init__(self, kinds: Sequence[str], cameras: Sequence[str], **kwargs: Any) -> None:
+        self.kinds = list(kinds)
+        self.extra_cameras = list(cameras)
+        super().__init__(**kwargs)
+
+    def _load_model(self) -> None:
+        super()._load_model()
+        robot = self.robots[0].robot_model
+        robot.set_base_xpos(robot.base_xpos_offset["table"](TABLE_SIZE[0]))
+        arena = TableArena(table_full_size=TABLE_SIZE, table_offset=(0.0, 0.0, TABLE_TOP_Z))
+        arena.set_origin([0, 0, 0])
+        for name in self.extra_cameras:
+            spec = CAMERAS[name]
+            cv = look_at(torch.tensor(spec.eye), torch.tensor(spec.target), torch.tensor(spec.up))
+            R_mj = cv[:3, :3].numpy() @ _MJ_TO_CV
+            wxyz = Rotation.from_matrix(R_mj).as_quat()[[3, 0, 1, 2]]
+            arena.set_camera(name, spec.eye, wxyz, camera_attribs={"fovy": str(spec.fovy)})
+        self.objects = [GRASP_OBJECTS[k](k) for k in self.kinds]
+        self.model = ManipulationTask(
+            mujoco_arena=arena,
+            mujoco_robots=[r.robot_model for r in self.robots],
+            mujoco_objects=self.objects,
+        )
+
+    def _setup_references(self) -> None:
+        super()._setup_references()
+        m = self.sim.model._model
+        self.body_ids = [m.body(o.root_body).id for o in self.objects]
+        self.qpos_addr = [int(m.joint(o.joints[0]).qposadr[0]) for o in self.objects]
+        self.qvel_addr = [int(m.joint(o.joints[0]).dofadr[0]) for o in self.objects]
+
+    def reward(self, action: Any = None) -> float:
+        return 0.0
+
+    def _check_success(self) -> bool:
+        return False
+
+
+class GraspTrialEnv(gym.Env):
+    """One grasp trial per episode (see the module docstring).
+
+    Args:
+        object_kind: the target object, one of ``GRASP_OBJECTS``.
+        n_distractors: other objects placed around the target (0-4).
+        cameras: camera names from ``vistask.envs.tabletop.CAMERAS``; () renders nothing.
+        image_size: square image side in pixels.
+        placement_range: the target's x and y are uniform in +-this (metres, table centre).
+        control_freq: controller rate (Hz); every phase is a fixed number of control steps.
+        pregrasp_distance: back-off along the approach axis before the approach (metres).
+        lift_height: how far the gripper lifts after closing (metres).
+        lift_threshold: minimum object rise for success (metres).
+        reach_tolerance: (metres, radians) pre-grasp error beyond which the trial stops as
+            unreachable.
+    """
+
+    metadata: ClassVar[dict[str, Any]] = {"render_modes": ["rgb_array"], "render_fps": 20}
+
+    # Control steps per phase (at control_freq = 20 Hz: 0.05 s each).
+    PHASES: ClassVar[dict[str, int]] = {
+        "open": 2,
+        "pregrasp": 24,
+        "approach": 12,
+        "close": 8,
+        "lift": 12,
+    }
+    SETTLE: ClassVar[dict[str, int]] = {"pregrasp": 6, "approach": 4, "hold": 8}
+
+    def __init__(
+        self,
+        object_kind: str = "box",
+        n_distractors: int = 0,
+        cameras: Sequence[str] = ("front",),
+        image_size: int = 128,
+        placement_range: float = 0.06,
+        control_freq: int = 20,
+        pregrasp_distance: float = 0.08,
+        lift_height: float = 0.12,
+        lift_threshold: float = 0.05,
+        reach_tolerance: tuple[float, float] = (0.02, 0.2),
+        render_mode: str | None = None,
+    ) -> None:
+        if object_kind not in GRASP_OBJECTS:
+            raise ValueError(f"unknown object {object_kind!r}; known: {sorted(GRASP_OBJECTS)}")
+        others = [k for k in GRASP_OBJECTS if k != object_kind]
+        if not 0 <= n_distractors <= min(4, len(others)):
+            raise ValueError(f"n_distractors must be in 0..4, got {n_distractors}")
+        unknown = [c for c in cameras if c not in CAMERAS]
+        if unknown:
+            raise ValueError(f"unknown cameras {unknown}; known: {sorted(CAMERAS)}")
+        if image_size <= 0:
+            raise ValueError(f"image_size must be positive, got {image_size}")
+        self.object_kind = object_kind
+        self.n_distractors = n_distractors
+        self.cameras = tuple(cameras)
+        self.image_size = image_size
+        self.placement_range = placement_range
+        self.pregrasp_distance = pregrasp_distance
+        self.lift_height = lift_height
+        self.lift_threshold = lift_threshold
+        self.reach_tolerance = reach_tolerance
+        self.render_mode = render_mode
+        self._distractor_pool = others
+
+        config = load_composite_controller_config(robot="Panda")
+        arm = config["body_parts"]["right"]
+        # Absolute world-frame targets; the limits only clip, so open them wide.
+        arm.update(input_type="absolute", input_ref_frame="world", input_max=10, input_min=-10)
+        arm.update(output_max=10, output_min=-10)
+        self._scene = _GraspScene(
+            [object_kind, *others] if n_distractors else [object_kind],
+            self.cameras,
+            robots="Panda",
+            controller_configs=config,
+            initialization_noise=None,
+            use_camera_obs=False,
+            has_renderer=False,
+            has_offscreen_renderer=bool(self.cameras) or render_mode == "rgb_array",
+            control_freq=control_freq,
+            horizon=10**9,
+            ignore_done=True,
+            hard_reset=False,
+        )
+        if self._scene.action_dim != 7:
+            raise RuntimeError(f"expected a 7-D OSC_POSE action, got {self._scene.action_dim}")
+        self._sim = self._scene.sim
+        self._gripper = self._scene.robots[0].gripper["right"]
+        self._site = self._sim.model.site_name2id(self._gripper.important_sites["grip_site"])
+        self._bounds = [self._collision_bounds(b) for b in self._scene.body_ids]
+        self._active: list[int] = []
+        self._object_geoms = self._scene.objects
+        self._parking = np.array([[2.0 + i, 2.0, 0.1] for i in range(len(self._scene.kinds))])
+
+        self.action_space = spaces.Box(-np.inf, np.inf, shape=(7,), dtype=np.float64)
+        obs: dict[str, spaces.Space] = {
+            "eef_pose": spaces.Box(-np.inf, np.inf, shape=(7,), dtype=np.float64)
+        }
+        H = W = image_size
+        for c in self.cameras:
+            obs[f"{c}_rgb"] = spaces.Box(0, 255, shape=(H, W, 3), dtype=np.uint8)
+            obs[f"{c}_depth"] = spaces.Box(0.0, np.inf, shape=(H, W), dtype=np.float32)
+            obs[f"{c}_segmentation"] = spaces.Box(-1, 4, shape=(H, W), dtype=np.int32)
+            obs[f"{c}_intrinsics"] = spaces.Box(-np.inf, np.inf, shape=(3, 3), dtype=np.float64)
+            obs[f"{c}_extrinsics"] = spaces.Box(-np.inf, np.inf, shape=(4, 4), dtype=np.float64)
+        self.observation_space = spaces.Dict(obs)
+        self._object_pose0: np.ndarray | None = None
+        self._done = True
+
+    # -- geometry -----------------------------------------------------------------------
+
+    def _collision_bounds(self, body: int) -> np.ndarray:
+        """(2, 3) body-frame AABB of all geoms of ``body`` (collision geoms decide the rest)."""
+        m, d = self._sim.model._model, self._sim.data._data
+        mujoco.mj_forward(m, d)
+        R_b, t_b = d.xmat[body].reshape(3, 3), d.xpos[body]
+        corners = np.array(np.meshgrid([-1, 1], [-1, 1], [-1, 1], indexing="ij")).reshape(3, -1).T
+        pts = []
+        for g in np.nonzero(m.geom_bodyid == body)[0]:
+            local = m.geom_aabb[g, :3] + corners * m.geom_aabb[g, 3:]
+            world = local @ d.geom_xmat[g].reshape(3, 3).T + d.geom_xpos[g]
+            pts.append((world - t_b) @ R_b)
+        pts = np.concatenate(pts)
+        return np.stack([pts.min(0), pts.max(0)])
+
+    @property
+    def workspace(self) -> Workspace:
+        """The geometric reachability filter for this arm and table (``vistask.grasp``)."""
+        m, d = self._sim.model._model, self._sim.data._data
+        base = d.xpos[m.body(self._scene.robots[0].robot_model.root_body).id]
+        return Workspace(
+            floor_z=TABLE_TOP_Z,
+            base=tuple(float(v) for v in base),
+            pregrasp_distance=self.pregrasp_distance,
+        )
+
+    @property
+    def object_bounds(self) -> np.ndarray:
+        """(2, 3) object-frame bounding box of the target (collision geometry)."""
+        return self._bounds[0].copy()
+
+    def _set_object(self, i: int, pos: np.ndarray, quat_xyzw: np.ndarray) -> None:
+        d = self._sim.data._data
+        a = self._scene.qpos_addr[i]
+        d.qpos[a : a + 7] = np.r_[pos, quat_xyzw[[3, 0, 1, 2]]]
+        v = self._scene.qvel_addr[i]
+        d.qvel[v : v + 6] = 0.0
+
+    def _place_objects(self) -> None:
+        rng = self.np_random
+        placed: list[tuple[np.ndarray, float]] = []
+        kinds = self._scene.kinds
+        active = [0]
+        if self.n_distractors:
+            pool = rng.choice(len(self._distractor_pool), self.n_distractors, replace=False)
+            active += [1 + int(i) for i in pool]
+        for i in range(len(kinds)):
+            if i not in active:
+                self._set_object(i, self._parking[i], np.array([0.0, 0.0, 0.0, 1.0]))
+        for rank, i in enumerate(active):
+            lo, hi = self._bounds[i]
+            radius = float(np.linalg.norm(np.maximum(-lo[:2], hi[:2])))
+            span = self.placement_range if rank == 0 else 0.25
+            for _ in range(200):
+                xy = rng.uniform(-span, span, size=2)
+                if all(np.linalg.norm(xy - c) > r + radius + 0.03 for c, r in placed):
+                    break
+            placed.append((xy, radius))
+            yaw = rng.uniform(0.0, 2 * math.pi)
+            quat = Rotation.from_rotvec([0.0, 0.0, yaw]).as_quat()
+            self._set_object(i, np.r_[xy, TABLE_TOP_Z + 0.001 - lo[2]], quat)
+        self._active = active
+        self._sim.forward()
+
+    # -- state --------------------------------------------------------------------------
+
+    def object_pose(self, index: int = 0) -> np.ndarray:
+        """(7,) world pose (XYZW) of the target (index 0) or of active distractor ``index``."""
+        d = self._sim.data._data
+        b = self._scene.body_ids[self._active[index]]
+        return np.r_[d.xpos[b], d.xquat[b][[1, 2, 3, 0]]]
+
+    def eef_pose(self) -> np.ndarray:
+        """(7,) world pose (XYZW) of the gripper frame."""
+        d = self._sim.data._data
+        quat = Rotation.from_matrix(d.site_xmat[self._site].reshape(3, 3)).as_quat()
+        return np.r_[d.site_xpos[self._site], quat]
+
+    # -- gymnasium API ------------------------------------------------------------------
+
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+        """Home the arm, place the objects at random, open the gripper and observe.
+
+        Returns:
+            the observation Dict and ``info`` with ``object_pose`` (7,), ``object_kind``,
+            ``object_bounds`` (2, 3) (object frame) and ``distractor_poses`` (K, 7).
+        """
+        super().reset(seed=seed)
+        self._scene.reset()
+        self._place_objects()
+        home = self.eef_pose()
+        for _ in range(self.PHASES["open"]):
+            self._act(home[:3], Rotation.from_quat(home[3:]), -1.0)
+        self._object_pose0 = self.object_pose()
+        self._done = False
+        info = {
+            "object_pose": self._object_pose0.copy(),
+            "object_kind": self.object_kind,
+            "object_bounds": self.object_bounds,
+            "distractor_poses": np.array(
+                [self.object_pose(k) for k in range(1, len(self._active))]
+            ).reshape(-1, 7),
+        }
+        return self._observe(), info
+
+    def step(self, action: Any) -> tuple[dict[str, np.ndarray], float, bool, bool, dict[str, Any]]:
+        """Execute one grasp at ``action`` (7,) (world frame) and end the episode.
+
+        Returns:
+            observation, reward (1.0 success / 0.0), terminated=True, truncated=False, and
+            ``info``: ``success``, ``reason`` ("success", "unreachable", "missed", "dropped"),
+            ``pregrasp_error_t`` / ``_r`` and ``grasp_error_t`` / ``_r`` (reached pose error at
+            the pre-grasp and grasp poses: metres, radians; NaN if not reached), ``contact``
+            (the gripper touches the object after closing), ``grasped`` (it still does at the
+            end), ``lift_height`` (object rise, m), ``sim_seconds``,
+            ``wall_seconds``.
+        """
+        if self._done:
+            raise RuntimeError("call reset() before step(): one grasp per episode")
+        grasp = check_grasp(action)
+        start = time.perf_counter()
+        self._done = True
+        info = self._execute(grasp)
+        info["wall_seconds"] = time.perf_counter() - start
+        reward = 1.0 if info["success"] else 0.0
+        return self._observe(), reward, True, False, info
+
+    def render(self) -> np.ndarray | None:
+        if self.render_mode != "rgb_array":
+            return None
+        name = self.cameras[0] if self.cameras else "frontview"
+        rgb = self._sim.render(width=256, height=256, camera_name=name)
+        return rgb[::-1].copy()
+
+    def close(self) -> None:
+        self._scene.close()
+
+    # -- the grasp ----------------------------------------------------------------------
+
+    def _act(self, pos: np.ndarray, rot: Rotation, gripper: float) -> None:
+        self._scene.step(np.r_[pos, rot.as_rotvec(), gripper])
+
+    def _move(self, pos: np.ndarray, rot: Rotation, steps: int, settle: int, gripper: float):
+        """Track a straight line (slerp in orientation) to (pos, rot), then hold there."""
+        now = self.eef_pose()
+        slerp = Slerp([0.0, 1.0], Rotation.from_quat([now[3:], rot.as_quat()]))
+        for k in range(1, steps + 1):
+            a = k / steps
+            self._act((1 - a) * now[:3] + a * pos, slerp(a), gripper)
+        for _ in range(settle):
+            self._act(pos, rot, gripper)
+
+    def _pose_error(self, pos: np.ndarray, rot: Rotation) -> tuple[float, float]:
+        now = self.eef_pose()
+        angle = (Rotation.from_quat(now[3:]).inv() * rot).magnitude()
+        return float(np.linalg.norm(now[:3] - pos)), float(angle)
+
+    def _touching(self) -> bool:
+        """Whether any gripper geom touches the target."""
+        return bool(self._scene.check_contact(self._gripper, self._object_geoms[self._active[0]]))
+
+    def _closer_equivalent(self, rot: Rotation) -> Rotation:
+        """``rot`` or ``rot`` turned by pi about its z, whichever is nearer the gripper now."""
+        now = Rotation.from_quat(self.eef_pose()[3:])
+        flipped = rot * Rotation.from_rotvec([0.0, 0.0, math.pi])
+        return flipped if (now.inv() * flipped).magnitude() < (now.inv() * rot).magnitude() else rot
+
+    def _execute(self, grasp: np.ndarray) -> dict[str, Any]:
+        pos, rot = grasp[:3], self._closer_equivalent(Rotation.from_quat(grasp[3:]))
+        pre = pos - self.pregrasp_distance * rot.apply([0.0, 0.0, 1.0])
+        steps0 = self._scene.timestep
+        z0 = self._object_pose0[2]
+        info: dict[str, Any] = {"success": False, "contact": False, "grasped": False}
+
+        self._move(pre, rot, self.PHASES["pregrasp"], self.SETTLE["pregrasp"], -1.0)
+        error_t, error_r = self._pose_error(pre, rot)
+        info.update(pregrasp_error_t=error_t, pregrasp_error_r=error_r)
+        info.update(grasp_error_t=math.nan, grasp_error_r=math.nan)
+        if error_t > self.reach_tolerance[0] or error_r > self.reach_tolerance[1]:
+            info.update(reason="unreachable", lift_height=float(self.object_pose()[2] - z0))
+        else:
+            self._move(pos, rot, self.PHASES["approach"], self.SETTLE["approach"], -1.0)
+            info["grasp_error_t"], info["grasp_error_r"] = self._pose_error(pos, rot)
+            for _ in range(self.PHASES["close"]):
+                self._act(pos, rot, 1.0)
+            info["contact"] = self._touching()
+            up = pos + np.array([0.0, 0.0, self.lift_height])
+            self._move(up, rot, self.PHASES["lift"], self.SETTLE["hold"], 1.0)
+            info["lift_height"] = float(self.object_pose()[2] - z0)
+            info["grasped"] = self._touching()
+            info["success"] = bool(info["lift_height"] >= self.lift_threshold and info["grasped"])
+            if info["success"]:
+                info["reason"] = "success"
+            else:
+                info["reason"] = "dropped" if info["contact"] else "missed"
+        info["sim_seconds"] = float(self._scene.timestep - steps0) * self._scene.control_timestep
+        return info
+
+    # -- observations -------------------------------------------------------------------
+
+    def _observe(self) -> dict[str, np.ndarray]:
+        obs: dict[str, np.ndarray] = {"eef_pose": self.eef_pose()}
+        for c in self.cameras:
+            view = self._render_view(c)
+            obs[f"{c}_rgb"] = view.rgb.numpy()
+            obs[f"{c}_depth"] = view.depth.numpy().astype(np.float32)
+            obs[f"{c}_segmentation"] = view.segmentation.numpy().astype(np.int32)
+            obs[f"{c}_intrinsics"] = view.camera.K.numpy()
+            obs[f"{c}_extrinsics"] = view.camera.cam_to_world.numpy()
+        return obs
+
+    def _render_view(self, name: str) -> RGBDView:
+        m, d = self._sim.model._model, self._sim.data._data
+        H = W = self.image_size
+        cam_id = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_CAMERA, name)
+        T = np.eye(4)
+        T[:3, :3] = d.cam_xmat[cam_id].reshape(3, 3) @ _MJ_TO_CV
+        T[:3, 3] = d.cam_xpos[cam_id]
+        camera = Camera(
+            intrinsics_from_fovy(float(m.cam_fovy[cam_id]), H, W), torch.from_numpy(T), H, W, name
+        )
+        rgb, buffer = self._sim.render(width=W, height=H, camera_name=name, depth=True)
+        seg = self._sim.render(width=W, height=H, camera_name=name, segmentation=True)
+        label_of_body = np.full(m.nbody, -1, dtype=np.int64)
+        for label, i in enumerate(self._active):
+            label_of_body[self._scene.body_ids[i]] = label
+        geom_label = np.r_[label_of_body[m.body_rootid[m.geom_bodyid]], -1]
+        is_geom = seg[..., 0] == int(mujoco.mjtObj.mjOBJ_GEOM)
+        labels = geom_label[np.where(is_geom, seg[..., 1], -1)]
+        extent = m.stat.extent
+        depth = depth_buffer_to_metres(
+            torch.from_numpy(buffer[::-1].copy()), m.vis.map.znear * extent, m.vis.map.zfar * extent
+        )
+        return RGBDView(
+            rgb=torch.from_numpy(rgb[::-1].copy()),
+            depth=depth.float(),
+            camera=camera,
+            segmentation=torch.from_numpy(labels[::-1].copy()),
+        )
+
+    def patches(
+        self, obs: dict[str, np.ndarray], label: int | None = 0, config: PatchConfig | None = None
+    ) -> Patches:
+        """World-frame 3-D patches of object ``label`` (None: whole images) from all cameras."""
+        parts = []
+        for view in observation_views(obs, self.cameras).values():
+            try:
+                parts.append(view_patches(view, label, config))
+            except ValueError:
+                continue  # not visible from this camera
+        if not parts:
+            raise ValueError(f"object {label} yields no patch in cameras {self.cameras}")
+        return Patches.cat(parts)
+
+
+def observation_views(obs: dict[str, np.ndarray], cameras: Sequence[str]) -> dict[str, RGBDView]:
+    """Rebuild ``vistask.vision`` views from an observation Dict (one env, not batched)."""
+    views = {}
+    for c in cameras:
+        rgb = obs[f"{c}_rgb"]
+        camera = Camera(
+            torch.from_numpy(np.asarray(obs[f"{c}_intrinsics"])),
+            torch.from_numpy(np.asarray(obs[f"{c}_extrinsics"])),
+            rgb.shape[0],
+            rgb.shape[1],
+            c,
+        )
+        views[c] = RGBDView(
+            rgb=torch.from_numpy(np.asarray(rgb)),
+            depth=torch.from_numpy(np.asarray(obs[f"{c}_depth"])),
+            camera=camera,
+            segmentation=torch.from_numpy(np.asarray(obs[f"{c}_segmentation"]).astype(np.int64)),
+        )
+    return views
+
+
+def top_down_grasp(object_pose: np.ndarray, bounds: np.ndarray, depth: float = 0.02) -> np.ndarray:
+    """A scripted top-down grasp of an upright object (for tests and demonstrations).
+
+    The fingers close across the narrower horizontal side of the object's bounding box, the
+    fingertips ``depth`` below its top face.
+
+    Args:
+        object_pose: (7,) world pose of the object.
+        bounds: (2, 3) object-frame bounding box.
+
+    Returns:
+        (7,) world grasp pose.
+    """
+    lo, hi = bounds
+    centre = (lo + hi) / 2
+    top = np.r_[centre[:2], hi[2] - depth]
+    # Gripper z down (object -z); x (the closing axis) across the narrower horizontal extent.
+    x = np.array([1.0, 0.0, 0.0]) if (hi - lo)[0] < (hi - lo)[1] else np.array([0.0, 1.0, 0.0])
+    z = np.array([0.0, 0.0, -1.0])
+    R_local = np.stack([x, np.cross(z, x), z], axis=1)
+    R_obj = Rotation.from_quat(object_pose[3:])
+    rot = R_obj * Rotation.from_matrix(R_local)
+    return np.r_[R_obj.apply(top) + object_pose[:3], rot.as_quat()]
+
+
+class VectorGraspTrials:
+    """Parallel grasp trials in ``num_envs`` processes: a ``vistask.grasp.TrialRunner``.
+
+    Each call to ``reset`` starts one episode per environment and ``execute`` ends them
+    (one grasp each), so gymnasium's autoreset never comes into play.
+
+    Args:
+        object_kind: the target object.
+        num_envs: parallel environments.
+        asynchronous: processes (``AsyncVectorEnv``) or, for debugging, one process.
+        **env_kwargs: passed to ``GraspTrialEnv`` (``cameras`` defaults to () here).
+    """
+
+    def __init__(
+        self, object_kind: str, num_envs: int = 2, asynchronous: bool = True, **env_kwargs: Any
+    ) -> None:
+        env_kwargs.setdefault("cameras", ())
+        fns = [functools.partial(GraspTrialEnv, object_kind, **env_kwargs)] * num_envs
+        self.env: gym.vector.VectorEnv = (
+            gym.vector.AsyncVectorEnv(fns, context="spawn")
+            if asynchronous
+            else gym.vector.SyncVectorEnv(fns)
+        )
+        self.num_envs = num_envs
+        self.workspace: Workspace = self.env.get_attr("workspace")[0]
+        self.object_bounds: np.ndarray = self.env.get_attr("object_bounds")[0]
+        self.last_info: dict[str, Any] = {}
+
+    def reset(self, seeds: Sequence[int]) -> torch.Tensor:
+        """Place the objects with one seed per environment; returns (B, 7) object poses."""
+        if len(seeds) != self.num_envs:
+            raise ValueError(f"need {self.num_envs} seeds, got {len(seeds)}")
+        _, info = self.env.reset(seed=[int(s) for s in seeds])
+        return torch.as_tensor(np.asarray(info["object_pose"]), dtype=torch.float32)
+
+    def execute(self, grasps: torch.Tensor) -> tuple[torch.Tensor, dict[str, Any]]:
+        """Execute (B, 7) world grasps; returns (B,) bool successes and the step infos."""
+        grasps = np.asarray(torch.as_tensor(grasps, dtype=torch.float64).cpu())
+        _, reward, _, _, info = self.env.step(grasps)
+        self.last_info = info
+        return torch.as_tensor(reward > 0.5), info
+
+    def close(self) -> None:
+        self.env.close()

@@ -1,0 +1,49 @@
+"""Train RLVC on an image maze and compare its greedy policy with the oracle's.
+
+python scripts/train_rlvc.py                     # default VisualMaze-v0, 10,000 interactions
+python scripts/train_rlvc.py --interactions 5000 --env-kwargs '{"step": 0.08}'
+"""
+
+import argparse
+import json
+
+from vistask.train import train_rlvc
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--env", default="vistask/VisualMaze-v0")
+    parser.add_argument("--env-kwargs", type=json.loads, default={}, help="JSON dict for gym.make")
+    parser.add_argument("--interactions", type=int, default=10_000)
+    parser.add_argument("--words", type=int, default=2048, help="vocabulary size")
+    parser.add_argument("--alpha", type=float, default=0.05, help="t-test significance level")
+    parser.add_argument("--min-count", type=int, default=10)
+    parser.add_argument("--max-stages", type=int, default=300)
+    parser.add_argument("--eval-starts", type=int, default=100)
+    parser.add_argument("--eval-every", type=int, default=10)
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument(
+        "--out", default=None, help="run directory (default runs/train_rlvc-<time>)"
+    )
+    parser.add_argument("--no-progress", action="store_true")
+    args = parser.parse_args()
+    train_rlvc(
+        args.env,
+        args.env_kwargs,
+        args.interactions,
+        args.words,
+        args.alpha,
+        args.min_count,
+        args.max_stages,
+        args.eval_starts,
+        args.eval_every,
+        args.seed,
+        args.out,
+        progress=not args.no_progress,
+    )
+
+
+if __name__ == "__main__":
+    main()

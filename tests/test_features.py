@@ -1,0 +1,113 @@
+"""Visual features: SIFT keypoints, the k-means vocabulary, presence, determinism, round trip."""
+
+import numpy as np
+import pytest
+import torch
+from vistask.envs import VisualMazeEnv
+
+from vistask.features import SiftExtractor, VisualFeatureExtractor, kmeans
+
+
+@pytest.fixture(scope="module")
+def percepts() -> list[np.ndarray]:
+    env = VisualMazeEnv()
+    positions = env.geometry.sample_free(np.random.default_rng(0), 120)
+    return [env.percept_at(p) for p in positions]
+
+
+@pytest.fixture(scope="module")
+def extractor(percepts) -> VisualFeatureExtractor:
+    return VisualFeatureExtractor.fit(percepts, n_words=256, iters=5)
+
+
+def test_sift_finds_keypoints_inside_the_image(percepts):
+    kps = SiftExtractor()(percepts[0])
+    assert len(kps) > 5
+    assert kps.descriptors.shape == (len(kps), 128) and kps.descriptors.dtype == np.float32
+    assert ((kps.xy >= 0) & (kps.xy < 64)).all()
+
+
+def test_color_descriptors_append_chromaticity(percepts):
+    kps = SiftExtractor(color_weight=0.5)(percepts[0])
+    assert kps.descriptors.shape[1] == 130
+    grey = SiftExtractor()(percepts[0])
+    np.testing.assert_array_equal(kps.descriptors[:, :128], grey.descriptors)
+
+
+def test_batch_extraction_equals_one_by_one(percepts):
+    extractor = SiftExtractor(threads=2)
+    batch = extractor.batch(percepts[:40])
+    for image, kps in zip(percepts[:40], batch, strict=True):
+        single = extractor(image)
+        np.testing.assert_array_equal(single.descriptors, kps.descriptors)
+
+
+def test_the_same_image_always_gives_the_same_features(extractor, percepts):
+    first = extractor.presence(percepts)
+    again = extractor.presence(list(reversed(percepts)))
+    assert torch.equal(first, again.flip(0))
+    one = torch.stack([torch.from_numpy(extractor(p)).bool() for p in percepts[:10]])
+    assert torch.equal(one, first[:10])
+
+
+def test_presence_is_a_bool_matrix_over_the_vocabulary(extractor, percepts):
+    presence = extractor.presence(percepts)
+    assert presence.shape == (len(percepts), 256) and presence.dtype == torch.bool
+    assert presence.sum(1).float().mean() > 10  # dozens of features per percept
+    assert presence.any(0).sum() > 200  # most prototypes describe some percept
+
+
+def test_nearby_percepts_share_more_features_than_distant_ones(extractor):
+    env = VisualMazeEnv()
+    a = extractor.presence([env.percept_at((0.5, 0.2))])[0]
+    near = extractor.presence([env.percept_at((0.51, 0.2))])[0]
+    far = extractor.presence([env.percept_at((0.1, 0.9))])[0]
+    assert (a & near).sum() > 3 * (a & far).sum()
+
+
+def test_vocabulary_round_trip(tmp_path, extractor, percepts):
+    extractor.save(tmp_path / "vocab.pt")
+    loaded = VisualFeatureExtractor.load(tmp_path / "vocab.pt")
+    assert loaded.fingerprint == extractor.fingerprint
+    assert torch.equal(loaded.presence(percepts), extractor.presence(percepts))
+
+
+def test_soft_assignment_adds_features_and_changes_the_fingerprint(extractor, percepts):
+    soft = VisualFeatureExtractor(extractor.keypoints, extractor.centroids, soft_ratio=1.3)
+    hard, softer = extractor.presence(percepts), soft.presence(percepts)
+    assert (softer | hard).equal(softer) and softer.sum() > hard.sum()
+    assert soft.fingerprint != extractor.fingerprint
+
+
+def test_kmeans_converges_to_a_fixed_point_with_lower_error():
+    rng = np.random.default_rng(0)
+    centres = rng.normal(0, 10, (8, 8))
+    x = torch.from_numpy(np.repeat(centres, 100, axis=0) + rng.normal(0, 0.5, (800, 8))).float()
+
+    def sse(c):
+        return torch.cdist(x, c).min(1).values.pow(2).sum()
+
+    start = kmeans(x, 8, iters=0, seed=1)
+    found = kmeans(x, 8, iters=30, seed=1)
+    assert sse(found) < 0.9 * sse(start)
+    nearest = torch.cdist(x, found).argmin(1)
+    for k in range(8):  # every centroid is the mean of the points it owns
+        torch.testing.assert_close(found[k], x[nearest == k].mean(0), rtol=0, atol=1e-4)
+    assert torch.equal(kmeans(x, 8, iters=5, seed=3), kmeans(x, 8, iters=5, seed=3))
+
+
+def test_clear_errors_for_bad_input(extractor):
+    with pytest.raises(TypeError, match="uint8"):
+        extractor(np.zeros((64, 64, 3), np.float32))
+    with pytest.raises(ValueError, match="RGB"):
+        extractor(np.zeros((64, 64, 4), np.uint8))
+    with pytest.raises(ValueError, match="no keypoints"):
+        VisualFeatureExtractor.fit([np.zeros((64, 64, 3), np.uint8)] * 3, n_words=4)
+    with pytest.raises(ValueError, match="fewer words"):
+        VisualFeatureExtractor.fit([np.zeros((64, 64, 3), np.uint8), image_with_corners()], 500)
+
+
+def image_with_corners() -> np.ndarray:
+    image = np.zeros((64, 64, 3), np.uint8)
+    image[16:48, 16:48] = 255
+    return image

@@ -1,0 +1,106 @@
+"""The robosuite grasp-trial environment (one env built per module: about 5 s)."""
+
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+
+import numpy as np
+import pytest
+
+pytest.importorskip("robosuite")
+
+from vistask.envs.grasp_trial import (
+    GraspTrialEnv,
+    VectorGraspTrials,
+    check_grasp,
+    top_down_grasp,
+)
+
+
+@pytest.fixture(scope="module")
+def env():
+    env = GraspTrialEnv("cube", cameras=("front",), image_size=96)
+    yield env
+    env.close()
+
+
+def test_reset_observation_matches_its_space(env) -> None:
+    obs, info = env.reset(seed=3)
+    assert env.observation_space.contains(obs)
+    assert info["object_pose"].shape == (7,)
+    assert abs(np.linalg.norm(info["object_pose"][3:]) - 1) < 1e-6
+    # The cube rests on the table (z of its centre = half its side above the top).
+    assert abs(info["object_pose"][2] - (0.8 + 0.021)) < 0.005
+    seg = obs["front_segmentation"]
+    assert (seg == 0).sum() > 20  # the target is visible
+    depth = obs["front_depth"][seg == 0]
+    assert 0.3 < depth.mean() < 1.2
+    patches = env.patches(obs, label=0)
+    assert len(patches) > 0
+    assert np.linalg.norm(patches.positions.mean(0).numpy() - info["object_pose"][:3]) < 0.05
+
+
+def test_scripted_top_down_grasp_succeeds_and_far_grasp_fails(env) -> None:
+    _, info = env.reset(seed=11)
+    grasp = top_down_grasp(info["object_pose"], info["object_bounds"])
+    _, reward, terminated, truncated, step_info = env.step(grasp)
+    assert (reward, terminated, truncated) == (1.0, True, False)
+    assert step_info["lift_height"] >= 0.05 and step_info["grasped"]
+    assert step_info["grasp_error_t"] < 0.01
+    with pytest.raises(RuntimeError, match="reset"):
+        env.step(grasp)
+
+    _, info = env.reset(seed=12)
+    far = top_down_grasp(info["object_pose"], info["object_bounds"])
+    far[1] += 0.2
+    _, reward, _, _, step_info = env.step(far)
+    assert reward == 0.0 and step_info["reason"] == "missed"
+    assert abs(step_info["lift_height"]) < 0.01
+
+
+def test_unreachable_grasp_fails_cleanly_and_next_reset_is_unaffected(env) -> None:
+    _, info = env.reset(seed=13)
+    below = top_down_grasp(info["object_pose"], info["object_bounds"])
+    below[2] -= 0.3  # inside the table
+    _, reward, _, _, step_info = env.step(below)
+    assert reward == 0.0 and step_info["reason"] == "unreachable"
+    _, info = env.reset(seed=14)
+    assert abs(info["object_pose"][2] - (0.8 + 0.021)) < 0.005
+    _, reward, _, _, _ = env.step(top_down_grasp(info["object_pose"], info["object_bounds"]))
+    assert reward == 1.0
+
+
+@pytest.mark.parametrize(
+    ("grasp", "message"),
+    [
+        (np.zeros(6), "shape"),
+        (np.zeros((1, 7)), "shape"),
+        (np.r_[0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 2.0], "unit norm"),
+        (np.r_[np.nan, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0], "finite"),
+        (np.array(["a"] * 7), "numeric"),
+    ],
+)
+def test_malformed_grasps_are_rejected(env, grasp, message) -> None:
+    with pytest.raises(ValueError, match=message):
+        check_grasp(grasp)
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match=message):
+        env.step(grasp)
+
+
+@pytest.mark.slow
+def test_parallel_trials_in_processes() -> None:
+    runner = VectorGraspTrials("cube", num_envs=2)
+    try:
+        poses = runner.reset([1, 2])
+        assert poses.shape == (2, 7)
+        bounds = runner.object_bounds
+        grasps = np.stack([top_down_grasp(p.double().numpy(), bounds) for p in poses])
+        grasps[1, 0] += 0.25  # one far miss
+        success, info = runner.execute(grasps)
+        assert success.tolist() == [True, False]
+        assert list(info["reason"]) == ["success", "missed"]
+    finally:
+        runner.close()

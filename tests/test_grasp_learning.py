@@ -1,0 +1,266 @@
+"""Grasp densities without a simulator: eq. (8), importance weighting, learning, persistence."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+import torch
+
+from vistask.grasp import (
+    GraspLearner,
+    Trials,
+    Workspace,
+    demonstration_density,
+    draw_reachable,
+    empirical_density,
+    feature_grasps,
+    frames_to_poses,
+    importance_weights,
+    instance_grasp_density,
+    mixture_proposal,
+    reachable,
+    scripted_teacher_grasps,
+    transform_density,
+)
+from vistask.se3 import SE3KDE, compose, identity_poses, make_poses, random_poses
+from vistask.vision import Patches
+
+
+def _gen(seed: int = 0) -> torch.Generator:
+    return torch.Generator().manual_seed(seed)
+
+
+def _pose(t: list[float], rotvec: list[float]) -> torch.Tensor:
+    import roma
+
+    return make_poses(torch.tensor(t), roma.rotvec_to_unitquat(torch.tensor(rotvec)))
+
+
+def test_transform_density_is_the_density_seen_from_the_world() -> None:
+    grasps = random_poses(30, 0.05, generator=_gen(1))
+    density = SE3KDE(grasps, torch.rand(30, generator=_gen(2)), sigma_t=0.01, sigma_r=0.3)
+    pose = _pose([0.3, -0.1, 0.9], [0.2, -1.0, 2.0])
+    world = transform_density(density, pose)
+    queries = torch.cat([grasps[:10], random_poses(10, 0.05, generator=_gen(3))])
+    expected = density.evaluate(queries)
+    assert expected.max() > 0.01  # the queries do probe the density (weights sum to 1)
+    torch.testing.assert_close(
+        world.evaluate(compose(pose, queries)), expected, atol=1e-5, rtol=1e-4
+    )
+    # ...and is not the untransformed density.
+    assert not torch.allclose(world.evaluate(queries), expected, atol=1e-3)
+
+
+def test_eq8_pushes_the_grasp_density_through_the_pose_belief() -> None:
+    # Object model: grasps concentrated at one pose in the object frame.
+    g0 = _pose([0.0, 0.02, 0.05], [math.pi, 0.0, 0.0])
+    psi = SE3KDE(g0[None], sigma_t=0.005, sigma_r=0.1)
+    # Belief: two equally likely object poses (e.g. two instances), sharply known.
+    a, b = _pose([0.5, 0.0, 0.8], [0.0, 0.0, 0.5]), _pose([0.2, 0.3, 0.8], [0.0, 0.0, -2.0])
+    belief = SE3KDE(torch.stack([a, b]), sigma_t=0.001, sigma_r=0.01)
+    world = instance_grasp_density(belief, psi, n=4000, generator=_gen(4))
+    ga, gb = compose(a, g0), compose(b, g0)
+    near_a = (world.points[:, :3] - ga[:3]).norm(dim=-1) < 0.03
+    near_b = (world.points[:, :3] - gb[:3]).norm(dim=-1) < 0.03
+    assert (near_a | near_b).all()
+    assert abs(near_a.float().mean().item() - 0.5) < 0.05
+    # Around each mode the samples follow the transformed kernel: mean position and spread.
+    for near, g in ((near_a, ga), (near_b, gb)):
+        pts = world.points[near, :3]
+        assert (pts.mean(0) - g[:3]).norm() < 0.002
+        assert abs(pts.std(0).mean().item() - 0.005) < 0.001
+    # The world density peaks at the transformed grasps, not at the object-frame one.
+    values = world.evaluate(torch.stack([ga, gb, g0]))
+    assert values[0] > 10 * values[2] and values[1] > 10 * values[2]
+
+
+def test_importance_weights_recover_a_known_success_function() -> None:
+    """Successes drawn from a biased proposal, reweighted, estimate the success function."""
+    torch.manual_seed(0)
+    width = 0.03  # success probability s(t) = exp(-|t|^2 / (2 width^2)), orientation-free
+    proposal = SE3KDE(_pose([0.08, 0.0, 0.0], [0.0, 0.0, 0.0])[None], sigma_t=0.05, sigma_r=0.2)
+    grasps = proposal.sample(20000, _gen(5))
+    s = torch.exp(-(grasps[:, :3] ** 2).sum(-1) / (2 * width**2))
+    success = torch.rand(len(grasps), generator=_gen(6)) < s
+    trials = Trials()
+    trials.add(grasps, success, cycle=0)
+    empirical = empirical_density(trials, [proposal], c_rel=0.01, sigma_t=0.01, sigma_r=0.2)
+    raw = grasps[success, :3].double()
+    weighted = (empirical.weights.double()[:, None] * empirical.points[:, :3].double()).sum(0)
+    # The proposal drags the raw successes towards +x; the weighted ones are centred on 0.
+    assert raw[:, 0].mean() > 0.015
+    assert weighted.norm() < 0.006
+    # The empirical position density has the success function's spread ...
+    var = (empirical.weights.double()[:, None] * empirical.points[:, :3].double() ** 2).sum(0)
+    assert torch.allclose(var.sqrt(), torch.full((3,), width, dtype=torch.float64), atol=0.006)
+    # ... and its values along x follow s up to scale (KDE blur: width^2 + sigma_t^2).
+    xs = torch.linspace(-0.06, 0.06, 13)
+    queries = make_poses(torch.stack([xs, 0 * xs, 0 * xs], -1), grasps[:1, 3:].expand(13, 4))
+    queries = queries.clone()
+    queries[:, 3:] = empirical.mean()[3:]
+    f = empirical.evaluate(queries)
+    target = torch.exp(-(xs**2) / (2 * (width**2 + 0.01**2)))
+    assert torch.allclose(f / f.max(), target / target.max(), atol=0.15)
+
+
+def test_importance_weights_reject_bad_input() -> None:
+    assert torch.allclose(
+        importance_weights(torch.tensor([0.0, 1.0]), 1.0), torch.tensor([1.0, 0.5])
+    )
+    with pytest.raises(ValueError, match="non-negative"):
+        importance_weights(torch.tensor([-1.0]), 0.1)
+    with pytest.raises(ValueError, match="c must"):
+        importance_weights(torch.tensor([1.0]), -0.1)
+
+
+class _SyntheticRunner:
+    """Objects at random planar poses; a grasp succeeds near one object-frame pose."""
+
+    num_envs = 4
+
+    def __init__(self, target: torch.Tensor) -> None:
+        self.target = target
+        self.poses = identity_poses(self.num_envs)
+
+    def reset(self, seeds) -> torch.Tensor:
+        g = _gen(int(seeds[0]))
+        yaw = 2 * math.pi * torch.rand(self.num_envs, generator=g)
+        import roma
+
+        q = roma.rotvec_to_unitquat(torch.stack([0 * yaw, 0 * yaw, yaw], -1))
+        t = torch.cat([0.1 * torch.rand(self.num_envs, 2, generator=g), torch.full((4, 1), 0.8)], 1)
+        self.poses = make_poses(t, q)
+        return self.poses
+
+    def execute(self, grasps: torch.Tensor):
+        from vistask.se3 import relative, rotation_distance, translation_distance
+
+        local = relative(self.poses, grasps)
+        target = self.target.expand_as(local)
+        ok = (translation_distance(local, target) < 0.02) & (rotation_distance(local, target) < 0.4)
+        return ok, {}
+
+
+def test_learning_cycles_improve_on_the_hypothesis_and_round_trip(tmp_path) -> None:
+    target = _pose([0.0, 0.0, 0.02], [math.pi, 0.0, 0.0])
+    # A broad hypothesis with a little mass near the target.
+    hyp = demonstration_density(
+        torch.stack([target, _pose([0.03, 0.0, 0.0], [math.pi, 0.0, 1.0])]),
+        n_per_demo=50,
+        noise_t=0.02,
+        noise_r=0.4,
+        generator=_gen(7),
+    )
+    runner = _SyntheticRunner(target)
+    learner = GraspLearner(hyp, None, c_rel=0.1, sigma_t=0.005, sigma_r=0.15)
+    rates = []
+    for k in range(4):
+        stats = learner.run_cycle(runner, 80, range(100 * k, 100 * k + 80), _gen(10 + k))
+        rates.append(stats.success_rate)
+    assert stats.trials == 80 and len(learner.trials) == 320
+    assert rates[0] < 0.4
+    assert rates[-1] > rates[0] + 0.3
+    assert learner.history[-1].effective_sample_size > 1
+
+    path = tmp_path / "learner.pt"
+    learner.save(path)
+    loaded = GraspLearner.load(path)
+    a, b = learner.empirical, loaded.empirical
+    torch.testing.assert_close(a.points, b.points)
+    torch.testing.assert_close(a.weights, b.weights)
+    assert (a.sigma_t, a.sigma_r) == (b.sigma_t, b.sigma_r)
+    assert loaded.history == learner.history
+    torch.testing.assert_close(loaded.proposal.points, a.points)
+    a.save(tmp_path / "empirical.pt")
+    c = SE3KDE.load(tmp_path / "empirical.pt")
+    queries = a.sample(50, _gen(11))
+    torch.testing.assert_close(c.evaluate(queries), a.evaluate(queries))
+
+
+def test_reachability_filter() -> None:
+    ws = Workspace(floor_z=0.8, base=(-0.56, 0.0, 0.9))
+    down = _pose([0.0, 0.0, 0.85], [math.pi, 0.0, 0.0])  # z axis pointing down
+    up = _pose([0.0, 0.0, 0.85], [0.0, 0.0, 0.0])  # approach from below the table
+    low = _pose([0.0, 0.0, 0.79], [math.pi, 0.0, 0.0])  # below the table top
+    far = _pose([0.6, 0.0, 0.85], [math.pi, 0.0, 0.0])  # out of reach
+    back = _pose([0.0, 0.0, 0.85], [0.0, -math.pi / 2, 0.0])  # approach towards the base
+    ok = reachable(torch.stack([down, up, low, far, back]), ws)
+    assert ok.tolist() == [True, False, False, False, False]
+    density = SE3KDE(torch.stack([down, up]), sigma_t=0.001, sigma_r=0.01)
+    _, world, found = draw_reachable(density, identity_poses(8), ws, _gen(12))
+    assert found.all() and reachable(world, ws).all()
+
+
+def test_hypothesis_sources_give_valid_grasps() -> None:
+    bounds = torch.tensor([[-0.045, -0.03, -0.02], [0.045, 0.03, 0.02]])
+    teacher = scripted_teacher_grasps(bounds)
+    z = frames_to_poses(
+        torch.zeros(1, 3), torch.tensor([[1.0, 0, 0]]), torch.tensor([[0, 0, -1.0]])
+    )
+    assert torch.allclose(
+        z[0, 3:].abs(), torch.tensor([1.0, 0.0, 0.0, 0.0]), atol=1e-6
+    )  # pi about x
+    assert len(teacher) >= 2 and torch.allclose(
+        teacher[:, 3:].norm(dim=-1), torch.ones(len(teacher))
+    )
+    # Two parallel, same-coloured edges 4 cm apart on the plane z = 0 of an object below it.
+    xs = torch.linspace(-0.02, 0.02, 5)
+    pos = torch.cat(
+        [torch.stack([xs, xs * 0 - 0.02, xs * 0], -1), torch.stack([xs, xs * 0 + 0.02, xs * 0], -1)]
+    )
+    below = torch.tensor([[0.0, 0.0, -0.03]])
+    blue = torch.tensor([[0.1, 0.3, 0.8], [0.9, 0.9, 0.9]])
+    colors = blue.expand(11, 2, 3).clone()
+    colors[10, 0] = torch.tensor([0.1, 0.8, 0.1])  # the object's body: another colour
+    patches = Patches(
+        torch.cat([pos, below]), torch.tensor([[1.0, 0.0, 0.0]]).expand(11, 3).clone(), colors
+    )
+    grasps = feature_grasps(patches)
+    assert len(grasps) > 0
+    import roma
+
+    R = roma.unitquat_to_rotmat(grasps[:, 3:])
+    assert torch.allclose(
+        R[:, :, 0].abs(), torch.tensor([0.0, 1.0, 0.0]).expand(len(R), 3), atol=1e-4
+    )
+    assert torch.allclose(R[:, :, 2], torch.tensor([0.0, 0.0, -1.0]).expand(len(R), 3), atol=1e-4)
+    # Differently coloured edges suggest nothing.
+    red = patches.colors.clone()
+    red[5:10, 0] = torch.tensor([0.9, 0.1, 0.1])
+    assert len(feature_grasps(Patches(patches.positions, patches.directions, red))) == 0
+
+
+def test_best_of_k_draws_pick_the_likelier_grasps() -> None:
+    heavy = _pose([0.0, 0.0, 0.0], [math.pi, 0.0, 0.0])
+    light = _pose([0.05, 0.0, 0.0], [math.pi, 0.0, 0.0])
+    density = SE3KDE(
+        torch.stack([heavy, light]), torch.tensor([0.7, 0.3]), sigma_t=0.002, sigma_r=0.05
+    )
+    plain, _, _ = draw_reachable(density, identity_poses(200), None, _gen(13))
+    best, _, _ = draw_reachable(density, identity_poses(200), None, _gen(13), candidates=10)
+    near_heavy = lambda g: ((g[:, :3] - heavy[:3]).norm(dim=-1) < 0.01).float().mean()  # noqa: E731
+    assert 0.55 < near_heavy(plain) < 0.85
+    assert near_heavy(best) > near_heavy(plain) + 0.15
+    with pytest.raises(ValueError, match="candidates"):
+        draw_reachable(density, identity_poses(2), None, _gen(13), candidates=0)
+
+
+def test_pooled_cycles_are_weighted_by_the_mixture_of_their_proposals() -> None:
+    broad = SE3KDE(identity_poses(1), sigma_t=0.05, sigma_r=0.5)
+    sharp = SE3KDE(identity_poses(1), sigma_t=0.005, sigma_r=0.1)
+    trials = Trials()
+    g0, g1 = broad.sample(100, _gen(14)), sharp.sample(300, _gen(15))
+    trials.add(g0, torch.ones(100, dtype=torch.bool), cycle=0)
+    trials.add(g1, torch.ones(300, dtype=torch.bool), cycle=1)
+    q = mixture_proposal(trials, [broad, sharp])
+    expected = 0.25 * broad.evaluate(trials.grasps, normalized=True) + 0.75 * sharp.evaluate(
+        trials.grasps, normalized=True
+    )
+    torch.testing.assert_close(q, expected.double(), rtol=1e-4, atol=0.0)
+    empirical = empirical_density(trials, [broad, sharp], c_rel=0.0)
+    torch.testing.assert_close(
+        empirical.weights.double(), (1 / q) / (1 / q).sum(), rtol=1e-4, atol=0.0
+    )
+    with pytest.raises(ValueError, match="proposals"):
+        mixture_proposal(trials, [broad])

@@ -1,0 +1,61 @@
+"""Benchmark bookkeeping: summaries, the Markdown table and summary.json (no rendering)."""
+
+import json
+import math
+
+import pytest
+
+from vistask.objects import BenchConfig, markdown_table, summarize, write_results
+
+
+def _record(method: str, cond: str, kind: str, t: float, r: float, s: float) -> dict:
+    return {
+        "method": method,
+        "condition": cond,
+        "object": kind,
+        "translation_error_m": t,
+        "rotation_error_deg": r,
+        "success": t < 0.02 and r < 15.0,
+        "seconds": s,
+        "visible_fraction": [1.0, 0.5 if cond == "clutter" else 1.0],
+    }
+
+
+@pytest.fixture
+def records() -> list[dict]:
+    return [
+        _record("nbp", "clutter", "milk", 0.001, 1.0, 0.2),
+        _record("nbp", "clutter", "milk", 0.05, 3.0, 0.4),
+        _record("nbp", "clutter", "box", 0.002, 2.0, 0.3),
+        _record("open3d", "clean", "box", math.inf, 180.0, 0.1),
+    ]
+
+
+def test_summary_figures_per_method_condition_and_object(records: list[dict]) -> None:
+    summary = summarize(records)
+    clutter = summary["nbp"]["clutter"]
+    assert clutter["success_rate"] == pytest.approx(2 / 3)
+    assert clutter["median_translation_error_m"] == pytest.approx(0.002)
+    assert clutter["median_rotation_error_deg"] == pytest.approx(2.0)
+    assert clutter["seconds_per_scene"] == pytest.approx(0.3)
+    assert clutter["mean_visible_fraction"] == pytest.approx(0.5)
+    assert clutter["occluded_scenes"] == 1.0
+    assert clutter["per_object"]["milk"]["success_rate"] == 0.5
+    assert summary["open3d"]["clean"]["success_rate"] == 0.0
+    assert "clutter" not in summary["open3d"]
+
+
+def test_results_files_are_valid_json_and_markdown(records: list[dict], tmp_path) -> None:
+    summary = summarize(records)
+    table = write_results(summary, tmp_path)
+    loaded = json.loads((tmp_path / "summary.json").read_text())
+    assert loaded["open3d"]["clean"]["median_translation_error_m"] is None  # inf -> null
+    assert (tmp_path / "results.md").read_text().count("| nbp | clutter |") == 3
+    assert table == markdown_table(summary)
+
+
+def test_bad_bench_configs_are_clear_errors() -> None:
+    with pytest.raises(ValueError, match="unknown conditions"):
+        BenchConfig(conditions=("foggy",))
+    with pytest.raises(ValueError, match="methods"):
+        BenchConfig(methods=("icp",))

@@ -1,0 +1,92 @@
+"""NBP on synthetic scenes: messages, products, pose recovery in clutter, clear errors."""
+
+import pytest
+import torch
+
+from vistask.objects import ModelConfig, NBPConfig, ObjectModel, infer, multiply, push_up
+from vistask.objects.synthetic import synthetic_object, synthetic_scene
+from vistask.se3 import SE3KDE, compose, inverse, random_poses, rotation_distance
+from vistask.vision import Patches, pose_error
+
+FAST = NBPConfig(n_particles=400, mode_starts=24)
+
+
+@pytest.fixture(scope="module")
+def model() -> ObjectModel:
+    return ObjectModel.learn(synthetic_object(), "chair", ModelConfig(n_classes=6))
+
+
+def test_push_up_composes_with_the_inverse_potential() -> None:
+    g = torch.Generator().manual_seed(0)
+    x, r = random_poses(1, 0.1, generator=g), random_poses(1, 0.1, generator=g)
+    child = SE3KDE(x, sigma_t=0.01, sigma_r=0.1)
+    potential = SE3KDE(r, sigma_t=0.01, sigma_r=0.1)
+    message = push_up(child, potential, 10, 0.02, 0.3, g)
+    expected = compose(x, inverse(r))
+    torch.testing.assert_close(message.points[:, :3], expected[:, :3], atol=1e-5, rtol=0)
+    assert rotation_distance(message.points, expected).max() < 1e-3
+    assert (message.sigma_t, message.sigma_r) == (0.02, 0.3)
+
+
+def test_product_keeps_what_the_messages_agree_on() -> None:
+    g = torch.Generator().manual_seed(1)
+    a, b, c = random_poses(3, 0.2, generator=g)
+
+    def near(p: torch.Tensor) -> torch.Tensor:  # 50 poses within ~2 mm of p
+        return p + torch.cat([0.002 * torch.randn(50, 3, generator=g), torch.zeros(50, 4)], 1)
+
+    first = SE3KDE(torch.cat([near(a), near(b)]), sigma_t=0.01, sigma_r=0.2)
+    second = SE3KDE(torch.cat([near(a), near(c)]), sigma_t=0.01, sigma_r=0.2)
+    prod = multiply([first, second], 200, floor=0.01, cutoff=None, generator=g)
+    mass_at_a = prod.weights[(prod.points[:, :3] - a[:3]).norm(dim=1) < 0.02].sum()
+    assert mass_at_a > 0.95
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_nbp_recovers_the_pose_in_clutter(model: ObjectModel, seed: int) -> None:
+    g = torch.Generator().manual_seed(100 + seed)
+    pose = random_poses(1, 0.1, generator=g)[0]
+    scene = synthetic_scene(pose, n_clutter=300, keep=0.6, seed=seed)
+    result = infer(model, scene, FAST, seed=seed)
+    t_err, r_err = pose_error(result.pose, pose)
+    assert t_err < 0.005 and r_err < 3.0
+    assert result.scores[0] >= result.scores.max()
+    assert result.poses.shape[1] == 7 and len(result.poses) <= FAST.n_modes
+
+
+def test_two_instances_give_two_modes(model: ObjectModel) -> None:
+    g = torch.Generator().manual_seed(7)
+    poses = random_poses(2, 0.0, generator=g)
+    poses[0, :3] = torch.tensor([0.2, 0.0, 0.0])
+    poses[1, :3] = torch.tensor([-0.2, 0.0, 0.0])
+    scene = Patches.cat(
+        [synthetic_scene(p, n_clutter=0, keep=0.8, seed=i) for i, p in enumerate(poses)]
+    )
+    result = infer(model, scene, NBPConfig(n_particles=800, n_modes=4), seed=0)
+    for true in poses:
+        t_err, r_err = pose_error(result.poses[:2], true)
+        assert (t_err < 0.01).any() and (r_err[t_err < 0.01] < 5.0).any()
+
+
+def test_top_down_pass_gives_a_belief_for_every_feature(model: ObjectModel) -> None:
+    pose = random_poses(1, 0.1, generator=torch.Generator().manual_seed(3))[0]
+    scene = synthetic_scene(pose, n_clutter=50, seed=3)
+    result = infer(model, scene, NBPConfig(n_particles=300, top_down=True), seed=0)
+    assert set(result.beliefs) == set(range(len(model.features)))
+    # The top-down belief of a primitive feature lies on the object's instances.
+    leaf = model.leaves()[0]
+    belief = result.beliefs[leaf]
+    instances = compose(pose, model.instances(model.features[leaf].appearance))
+    nearest = torch.cdist(belief.points[:, :3], instances[:, :3]).min(dim=1).values
+    assert (belief.weights * (nearest < 0.01)).sum() > 0.8
+
+
+def test_empty_or_foreign_scenes_are_clear_errors(model: ObjectModel) -> None:
+    obj = synthetic_object()
+    with pytest.raises(ValueError, match="empty scene"):
+        infer(model, obj.select(torch.zeros(len(obj), dtype=torch.bool)), FAST)
+    grey = Patches(obj.positions, obj.directions, torch.full_like(obj.colors, 0.5), obj.normals)
+    with pytest.raises(ValueError, match="no scene patch matches"):
+        infer(model, grey, FAST)
+    with pytest.raises(ValueError, match="normals"):
+        infer(model, Patches(obj.positions, obj.directions, obj.colors), FAST)

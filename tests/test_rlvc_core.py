@@ -1,0 +1,179 @@
+"""RLVC's parts on synthetic data: split search, t-test, Q solver, class tree, database."""
+
+import numpy as np
+import pytest
+import torch
+
+from vistask.rlvc import (
+    RLVC,
+    ClassTree,
+    InteractionDatabase,
+    estimate_mdp,
+    find_splits,
+    td_errors,
+    value_iteration,
+)
+
+
+def sparse(presence: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    return presence.nonzero(as_tuple=True)
+
+
+def test_split_search_finds_the_planted_feature():
+    rng = np.random.default_rng(0)
+    n, f = 2000, 300
+    presence = torch.from_numpy(rng.random((n, f)) < 0.3)
+    actions = torch.from_numpy(rng.integers(0, 4, n))
+    # TD errors depend on feature 123 under action 2 only.
+    deltas = torch.from_numpy(rng.normal(0, 1, n))
+    deltas += 3.0 * (presence[:, 123] & (actions == 2))
+    rows, features = sparse(presence)
+    splits = find_splits(
+        rows,
+        features,
+        torch.zeros(n, dtype=torch.long),
+        actions,
+        deltas,
+        1,
+        4,
+        f,
+        alpha=0.05,
+        min_count=10,
+        bonferroni=True,
+    )
+    assert [(s.state, s.feature, s.action) for s in splits] == [(0, 123, 2)]
+    assert splits[0].p_value < 1e-6
+
+
+def test_the_t_test_refuses_splits_on_pure_noise():
+    rng = np.random.default_rng(1)
+    n, f = 2000, 300
+    presence = torch.from_numpy(rng.random((n, f)) < 0.3)
+    rows, features = sparse(presence)
+    states = torch.from_numpy(rng.integers(0, 3, n))
+    actions = torch.from_numpy(rng.integers(0, 4, n))
+    noise = torch.from_numpy(rng.standard_t(3, n))  # heavy tails, as TD errors have
+    kwargs = dict(n_states=3, n_actions=4, n_features=f, alpha=0.05, min_count=10)
+    assert find_splits(rows, features, states, actions, noise, bonferroni=True, **kwargs) == []
+    # Without the correction, the best of 3 x 4 x 300 candidates looks significant: that is
+    # why the correction exists.
+    assert find_splits(rows, features, states, actions, noise, bonferroni=False, **kwargs)
+
+
+def test_min_count_bounds_each_side_of_a_split():
+    n = 100
+    presence = torch.zeros(n, 2, dtype=torch.bool)
+    presence[:5, 0] = True  # perfect but tiny split
+    deltas = torch.zeros(n, dtype=torch.float64)
+    deltas[:5] = 10.0
+    rows, features = sparse(presence)
+    zeros = torch.zeros(n, dtype=torch.long)
+    assert find_splits(rows, features, zeros, zeros, deltas, 1, 1, 2, min_count=6) == []
+    (split,) = find_splits(rows, features, zeros, zeros, deltas, 1, 1, 2, min_count=5)
+    assert split.feature == 0 and split.p_value == 0.0
+
+
+def test_value_iteration_matches_a_hand_solved_mdp():
+    # Two states; in s0, action 1 moves to s1 (reward 0); in s1, action 0 ends with reward 10.
+    # Other actions stay put with reward 0. Q*(s1, 0) = 10, Q*(s0, 1) = 0.5 * 10 = 5 (gamma 0.5).
+    s = torch.tensor([0, 0, 1, 1])
+    a = torch.tensor([0, 1, 0, 1])
+    r = torch.tensor([0.0, 0.0, 10.0, 0.0], dtype=torch.float64)
+    s2 = torch.tensor([0, 1, 1, 1])
+    done = torch.tensor([False, False, True, False])
+    q = value_iteration(estimate_mdp(s, a, r, s2, done, 2, 2), gamma=0.5)
+    expected = torch.tensor([[2.5, 5.0], [10.0, 5.0]], dtype=torch.float64)
+    torch.testing.assert_close(q, expected)
+    torch.testing.assert_close(
+        td_errors(q, s, a, r, s2, done, 0.5), torch.zeros(4, dtype=torch.float64)
+    )
+
+
+def test_unvisited_actions_are_never_greedy():
+    s, a = torch.tensor([0]), torch.tensor([1])
+    r, done = torch.tensor([-1.0], dtype=torch.float64), torch.tensor([True])
+    q = value_iteration(estimate_mdp(s, a, r, s, done, 1, 3), gamma=0.9)
+    assert q.argmax(1).item() == 1 and torch.isinf(q[0, [0, 2]]).all()
+
+
+def test_estimate_mdp_rejects_unknown_action_ids():
+    one = torch.tensor([0])
+    with pytest.raises(ValueError, match="action ids"):
+        estimate_mdp(one, torch.tensor([5]), one.double(), one, torch.tensor([False]), 1, 4)
+
+
+def test_batch_classification_equals_per_sample_classification():
+    rng = np.random.default_rng(2)
+    tree = ClassTree(50)
+    for _ in range(30):
+        tree.split(int(rng.integers(tree.n_classes)), int(rng.integers(50)))
+    presence = torch.from_numpy(rng.random((500, 50)) < 0.5)
+    batch = tree.classify(presence)
+    single = torch.cat([tree.classify(row[None]) for row in presence])
+    assert torch.equal(batch, single)
+    assert set(batch.tolist()) <= set(range(tree.n_classes))
+    restored = ClassTree.from_state_dict(tree.state_dict())
+    assert torch.equal(restored.classify(presence), batch)
+
+
+def test_split_keeps_class_ids_stable():
+    tree = ClassTree(4)
+    assert tree.split(0, 2) == 1
+    assert tree.split(0, 3) == 2
+    presence = torch.tensor([[0, 0, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1], [0, 0, 1, 1]]).bool()
+    assert tree.classify(presence).tolist() == [0, 1, 2, 1]
+    assert tree.selected_features == [2, 3] and tree.depth == 2
+    with pytest.raises(ValueError, match="no class"):
+        tree.split(7, 0)
+
+
+def test_empty_database_is_rejected():
+    empty = torch.zeros(0, dtype=torch.long)
+    with pytest.raises(ValueError, match="empty"):
+        InteractionDatabase(
+            torch.zeros(1, 3, dtype=torch.bool), empty, empty, empty.double(), empty, empty.bool()
+        )
+
+
+def synthetic_chain(n_states: int = 6, n: int = 4000, seed: int = 0) -> InteractionDatabase:
+    """A noisy chain whose state is shown by one of n_states features: RLVC must split
+    the single initial class into the chain's states to act well."""
+    rng = np.random.default_rng(seed)
+    states = rng.integers(0, n_states, n)
+    actions = rng.integers(0, 2, n)  # 0: left, 1: right
+    nxt = np.clip(states + np.where(actions == 1, 1, -1), 0, n_states - 1)
+    terminal = nxt == n_states - 1
+    rewards = np.where(terminal, 10.0, 0.0)
+    presence = np.zeros((2 * n, n_states + 20), bool)
+    presence[np.arange(n), states] = True
+    presence[n + np.arange(n), nxt] = True
+    presence[:, n_states:] = rng.random((2 * n, 20)) < 0.5  # distractors
+    return InteractionDatabase(
+        torch.from_numpy(presence),
+        torch.arange(n),
+        torch.from_numpy(actions),
+        torch.from_numpy(rewards),
+        torch.arange(n, 2 * n),
+        torch.from_numpy(terminal),
+    )
+
+
+def test_rlvc_learns_the_synthetic_chain_and_its_incremental_classes_match_the_tree():
+    db = synthetic_chain()
+    rlvc = RLVC(db.n_features, 2, gamma=0.9).learn(db, progress=False)
+    assert rlvc.history[-1].splits == 0
+    assert set(rlvc.tree.selected_features) <= set(range(6))  # no distractor selected
+    chain = torch.eye(6 + 20, dtype=torch.bool)[:5]
+    assert rlvc.greedy(chain).tolist() == [1, 1, 1, 1, 1]
+    # Each stage's mean |TD| shrinks as aliasing is removed.
+    assert rlvc.history[-1].mean_abs_td < 0.5 * rlvc.history[0].mean_abs_td
+
+
+def test_rlvc_save_load_round_trip(tmp_path):
+    db = synthetic_chain(n=1000)
+    rlvc = RLVC(db.n_features, 2, gamma=0.9).learn(db, progress=False)
+    rlvc.save(tmp_path / "rlvc.pt")
+    loaded = RLVC.load(tmp_path / "rlvc.pt")
+    assert torch.equal(loaded.tree.classify(db.presence), rlvc.tree.classify(db.presence))
+    torch.testing.assert_close(loaded.q, rlvc.q)
+    assert loaded.history == rlvc.history

@@ -1,0 +1,55 @@
+"""Run directories, TensorBoard writers and JSON summaries shared by every script."""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+
+def run_dir(script: str, out: str | Path | None = None) -> Path:
+    """``out`` if given, else ``runs/<script>-<YYYYmmdd-HHMMSS>/``; created."""
+    path = Path(out) if out else Path("runs") / f"{script}-{time.strftime('%Y%m%d-%H%M%S')}"
+    path.mkdir(parents=True, exist_ok=True)
+    return path
+
+
+def tensorboard(path: str | Path):
+    """A TensorBoard ``SummaryWriter`` logging under ``path``."""
+    from torch.utils.tensorboard import SummaryWriter  # imports tensorboard: slow, so lazy
+
+    return SummaryWriter(log_dir=str(path))
+
+
+def _plain(value: Any) -> Any:
+    if isinstance(value, dict):
+        return {str(k): _plain(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_plain(v) for v in value]
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    return value
+
+
+def write_summary(path: str | Path, summary: dict) -> Path:
+    """Write ``summary`` as indented JSON (NumPy scalars and arrays converted)."""
+    path = Path(path)
+    if path.is_dir():
+        path = path / "summary.json"
+    path.write_text(json.dumps(_plain(summary), indent=2) + "\n")
+    return path
+
+
+def print_table(rows: dict[str, Any], title: str = "") -> None:
+    """Print ``name value`` rows aligned, numbers with 4 significant digits."""
+    if title:
+        print(title)
+    width = max(len(k) for k in rows)
+    for key, value in rows.items():
+        text = f"{value:.4g}" if isinstance(value, float) else str(value)
+        print(f"{key:<{width}}  {text}")

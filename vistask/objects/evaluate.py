@@ -1,0 +1,397 @@
+"""Pose-estimation benchmark on robosuite tabletop scenes: NBP and the Open3D baseline.
+
+Both methods see the same scene patches (every camera merged, the table plane removed) and
+the same model points. Seconds per scene count patch extraction plus the method, not the
+rendering. Success: translation error < 2 cm and rotation error < 15 degrees, modulo the
+object's symmetry. robosuite is imported only when scenes are made.
+"""
+
+from __future__ import annotations
+
+import json
+import statistics
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from vistask.objects.model import ModelConfig, ObjectModel
+from vistask.objects.nbp import NBPConfig, infer
+from vistask.objects.registration import RegistrationConfig, estimate_pose_open3d
+from vistask.vision import PatchConfig, Patches, pose_error, view_patches
+
+DEFAULT_CAMERAS = ("front", "left", "top")
+SUCCESS_TRANSLATION_M = 0.02
+SUCCESS_ROTATION_DEG = 15.0
+TABLE_MARGIN_M = 0.004
+"""Patches lower than this above the table top belong to the table plane."""
+OCCLUDED = 0.9
+"""A target with less than this fraction of its pixels visible in a view is occluded there."""
+
+
+@dataclass(frozen=True)
+class Condition:
+    """How test scenes are made.
+
+    Attributes:
+        distractors: scene index -> number of distractor objects.
+        distractor_range: distractors' x and y are uniform in +-this (metres); the target's
+            in +-0.08, so a smaller range crowds the distractors around it.
+        occluded: draw scenes (seeds derived from the scene's) until the target is partly
+            hidden (below ``OCCLUDED`` visible) in at least one camera; with few cameras
+            and sparse tables that happens in only about one scene in ten.
+        max_tries: draws at most; then the most occluded draw is kept.
+    """
+
+    distractors: Callable[[int], int]
+    distractor_range: float = 0.2
+    occluded: bool = False
+    max_tries: int = 30
+
+
+CONDITIONS: dict[str, Condition] = {
+    "clean": Condition(lambda i: 0),
+    "clutter": Condition(lambda i: 3 + i % 2, distractor_range=0.15, occluded=True),
+}
+
+
+@dataclass
+class BenchConfig:
+    """What to run.
+
+    Attributes:
+        objects: object kinds (``vistask.envs.tabletop.OBJECTS``).
+        n_scenes: test scenes per object and condition.
+        conditions: names from ``CONDITIONS``.
+        methods: "nbp" and/or "open3d".
+        cameras: cameras of the learning views and of the test scenes.
+        image_size: pixels (square images).
+        n_rotations: object yaws shot for learning.
+        voxel: down-sampling voxel (metres) of the learned patch set.
+        seed: base seed of the test scenes (learning views are fixed).
+        device: where NBP runs.
+        model, nbp, registration, patches: parameters of the parts.
+    """
+
+    objects: tuple[str, ...] = ("cereal", "milk", "bread", "hammer", "can", "box")
+    n_scenes: int = 10
+    conditions: tuple[str, ...] = ("clean", "clutter")
+    methods: tuple[str, ...] = ("nbp", "open3d")
+    cameras: tuple[str, ...] = DEFAULT_CAMERAS
+    image_size: int = 256
+    n_rotations: int = 4
+    voxel: float = 0.004
+    seed: int = 1000
+    device: str = "cpu"
+    model: ModelConfig = field(default_factory=ModelConfig)
+    nbp: NBPConfig = field(default_factory=NBPConfig)
+    registration: RegistrationConfig = field(default_factory=RegistrationConfig)
+    patches: PatchConfig = field(default_factory=PatchConfig)
+
+    def __post_init__(self) -> None:
+        unknown = set(self.conditions) - set(CONDITIONS)
+        if unknown:
+            raise ValueError(f"unknown conditions {sorted(unknown)}; known: {sorted(CONDITIONS)}")
+        if set(self.methods) - {"nbp", "open3d"} or not self.methods:
+            raise ValueError(f"methods must be among 'nbp', 'open3d', got {self.methods}")
+        if self.n_scenes < 1 or not self.objects:
+            raise ValueError("need at least one object and one scene")
+
+
+def visible_fraction(scene) -> list[float]:
+    """Per camera, the target's pixels seen in ``scene`` over those seen with the
+    distractors removed (1: not occluded). Re-renders the target alone at its pose."""
+    from vistask.envs.tabletop import tabletop_world
+
+    if len(scene.objects) == 1:
+        return [1.0] * len(scene.views)
+    world = tabletop_world()
+    world.arrange([scene.target], scene.target_pose[None], max_steps=0)
+    fractions = []
+    for name, view in scene.views.items():
+        cam = view.camera
+        alone = world.render(name, [scene.target], cam.height, cam.width).mask(0).sum()
+        fractions.append(float(view.mask(0).sum()) / max(int(alone), 1))
+    return fractions
+
+
+def scene_patches(scene, config: PatchConfig | None = None) -> Patches:
+    """World-frame patches of every view of a ``Scene``, without the table plane."""
+    from vistask.envs.tabletop import TABLE_TOP_Z
+
+    patches = Patches.cat([view_patches(v, config=config) for v in scene.views.values()])
+    return patches.select(patches.positions[:, 2] > TABLE_TOP_Z + TABLE_MARGIN_M)
+
+
+def learn_model(
+    kind: str,
+    cameras: Sequence[str] = DEFAULT_CAMERAS,
+    n_rotations: int = 4,
+    image_size: int = 256,
+    voxel: float = 0.004,
+    config: ModelConfig | None = None,
+    patch_config: PatchConfig | None = None,
+) -> ObjectModel:
+    """Render ``kind`` alone at ``n_rotations`` yaws, merge its patches, learn its model."""
+    from vistask.envs.tabletop import object_patches
+
+    patches = object_patches(
+        kind, n_rotations, cameras, image_size, config=patch_config, voxel=voxel
+    )
+    return ObjectModel.learn(patches, kind, config)
+
+
+def draw_estimate(view, model: ObjectModel, pose: torch.Tensor, scale: int = 2) -> np.ndarray:
+    """The model's patches back-projected into ``view`` at ``pose`` (7,) (paper Fig. 14).
+
+    Returns:
+        (scale * H, scale * W, 3) uint8 RGB picture.
+    """
+    from vistask.vision.draw import draw_patches
+
+    world = model.patches.transform(pose.float().cpu())
+    return draw_patches(view.rgb, view.camera, world, length=0.008, scale=scale)
+
+
+def make_test_scene(
+    seed: int, kind: str, condition: Condition, index: int, cfg: BenchConfig
+) -> tuple:
+    """A test scene of ``condition`` (reproducible from ``seed``) and the target's visible
+    fraction per camera (see ``visible_fraction``)."""
+    from vistask.envs.tabletop import tabletop_world
+
+    world = tabletop_world()
+    n = condition.distractors(index)
+    best: tuple | None = None
+    for attempt in range(condition.max_tries if condition.occluded else 1):
+        try:
+            scene = world.generate(
+                seed * 100 + attempt,
+                kind,
+                n,
+                cfg.cameras,
+                cfg.image_size,
+                distractor_range=condition.distractor_range,
+            )
+        except RuntimeError:  # no room for every distractor that close: draw again
+            continue
+        visible = visible_fraction(scene)
+        if best is None or min(visible) < min(best[1]):
+            best = (scene, visible)
+        if not condition.occluded or min(visible) < OCCLUDED:
+            break
+    if best is None:
+        raise RuntimeError(f"no scene could be placed for seed {seed}")
+    return best
+
+
+def _estimate(method: str, model: ObjectModel, patches: Patches, cfg: BenchConfig, seed: int):
+    if method == "nbp":
+        result = infer(model, patches, cfg.nbp, device=cfg.device, seed=seed)
+        return result.pose.cpu()
+    return estimate_pose_open3d(model, patches, cfg.registration, seed=seed).pose
+
+
+def _run_method(
+    method: str, model: ObjectModel, patches: Patches, scene, cfg: BenchConfig, seed: int
+) -> dict:
+    """Estimate the target's pose in ``scene`` with ``method``; the record of the attempt."""
+    start = time.perf_counter()
+    try:
+        pose = _estimate(method, model, patches, cfg, seed)
+    except ValueError as err:  # nothing matched the model: a failure, not a crash
+        pose, failure = None, str(err)
+    else:
+        failure = None
+    seconds = time.perf_counter() - start
+    if pose is None:
+        t_err, r_err = float("inf"), 180.0
+    else:
+        te, re = pose_error(pose, scene.target_pose, scene.symmetry())
+        t_err, r_err = float(te), float(re)
+    return {
+        "method": method,
+        "condition": None,
+        "object": scene.target,
+        "seed": seed,
+        "scene_seed": scene.seed,
+        "objects_in_scene": scene.objects,
+        "translation_error_m": t_err,
+        "rotation_error_deg": r_err,
+        "success": t_err < SUCCESS_TRANSLATION_M and r_err < SUCCESS_ROTATION_DEG,
+        "seconds": seconds,
+        "error": failure,
+        "pose": None if pose is None else pose.tolist(),
+        "true_pose": scene.target_pose.tolist(),
+    }
+
+
+def run_benchmark(
+    cfg: BenchConfig,
+    out: Path | None = None,
+    writer=None,
+    pictures: int = 0,
+    log: Callable[[str], None] | None = print,
+    models: dict[str, ObjectModel] | None = None,
+) -> dict:
+    """Learn each object's model, estimate its pose in every test scene with every method.
+
+    Args:
+        cfg: what to run.
+        out: run directory (pictures go to ``out/pictures``); None writes nothing.
+        writer: optional ``torch.utils.tensorboard.SummaryWriter`` for per-scene scalars.
+        pictures: per object and condition, how many scenes get a picture of each method's
+            estimate drawn over the first camera's image.
+        log: progress printer, or None.
+        models: already learned models by object kind (the others are learned here).
+
+    Returns:
+        summary dict (see ``summarize``) with the per-scene ``records`` and the config.
+    """
+    records: list[dict] = []
+    step = 0
+    for o, kind in enumerate(cfg.objects):
+        start = time.perf_counter()
+        model = (models or {}).get(kind) or learn_model(
+            kind, cfg.cameras, cfg.n_rotations, cfg.image_size, cfg.voxel, cfg.model, cfg.patches
+        )
+        if log:
+            log(
+                f"{kind}: model of {len(model.patches)} patches, {model.n_classes} classes, "
+                f"depth {model.depth()}, learned in {time.perf_counter() - start:.1f} s"
+            )
+        for c, cond in enumerate(cfg.conditions):
+            for i in range(cfg.n_scenes):
+                seed = cfg.seed + 10_000 * o + 1_000 * c + i
+                scene, visible = make_test_scene(seed, kind, CONDITIONS[cond], i, cfg)
+                start = time.perf_counter()
+                patches = scene_patches(scene, cfg.patches)
+                patch_seconds = time.perf_counter() - start
+                for method in cfg.methods:
+                    record = _run_method(method, model, patches, scene, cfg, seed)
+                    record["seconds"] += patch_seconds
+                    record["condition"], record["visible_fraction"] = cond, visible
+                    records.append(record)
+                    t_err, r_err = record["translation_error_m"], record["rotation_error_deg"]
+                    ok, seconds, pose = record["success"], record["seconds"], record["pose"]
+                    if writer is not None:
+                        tag = f"{method}/{cond}/{kind}"
+                        writer.add_scalar(f"{tag}/translation_error_m", min(t_err, 1.0), step)
+                        writer.add_scalar(f"{tag}/rotation_error_deg", r_err, step)
+                        writer.add_scalar(f"{tag}/seconds", seconds, step)
+                        writer.add_scalar(f"{tag}/success", float(ok), step)
+                    if out is not None and i < pictures and pose is not None:
+                        name = f"{kind}_{cond}_{seed}_{method}"
+                        _save_picture(out, scene, model, torch.tensor(pose), name)
+                    if log:
+                        log(
+                            f"  {method:6s} {cond:7s} {kind:7s} seed {seed}: "
+                            f"{t_err * 100:6.2f} cm {r_err:6.1f} deg {seconds:5.2f} s"
+                            f"{'' if ok else '  FAIL'}"
+                        )
+                step += 1
+    summary = summarize(records)
+    summary["config"] = _jsonable(asdict(cfg))
+    summary["records"] = records
+    return summary
+
+
+def _save_picture(out: Path, scene, model: ObjectModel, pose: torch.Tensor, name: str) -> None:
+    import cv2
+
+    folder = out / "pictures"
+    folder.mkdir(parents=True, exist_ok=True)
+    view = next(iter(scene.views.values()))
+    picture = draw_estimate(view, model, pose)
+    cv2.imwrite(str(folder / f"{name}.png"), picture[:, :, ::-1])
+
+
+def _jsonable(x):
+    """Plain JSON types; non-finite floats (a failed estimate's error) become None."""
+    if isinstance(x, float) and not np.isfinite(x):
+        return None
+    if isinstance(x, dict):
+        return {k: _jsonable(v) for k, v in x.items()}
+    if isinstance(x, list | tuple):
+        return [_jsonable(v) for v in x]
+    return x
+
+
+def _stats(rows: list[dict]) -> dict:
+    return {
+        "n_scenes": len(rows),
+        "success_rate": sum(r["success"] for r in rows) / len(rows),
+        "median_translation_error_m": statistics.median(r["translation_error_m"] for r in rows),
+        "median_rotation_error_deg": statistics.median(r["rotation_error_deg"] for r in rows),
+        "seconds_per_scene": statistics.fmean(r["seconds"] for r in rows),
+        "mean_visible_fraction": statistics.fmean(min(r["visible_fraction"]) for r in rows),
+        "occluded_scenes": sum(min(r["visible_fraction"]) < OCCLUDED for r in rows) / len(rows),
+    }
+
+
+def summarize(records: list[dict]) -> dict:
+    """Per method and condition: overall figures plus ``per_object`` ones.
+
+    Returns:
+        {method: {condition: {success_rate, median_translation_error_m,
+        median_rotation_error_deg, seconds_per_scene, n_scenes, mean_visible_fraction (in
+        the most occluded camera), occluded_scenes (share with a camera below ``OCCLUDED``),
+        per_object: {kind: {...}}}}}
+    """
+    summary: dict = {}
+    for method in dict.fromkeys(r["method"] for r in records):
+        summary[method] = {}
+        for cond in dict.fromkeys(r["condition"] for r in records):
+            rows = [r for r in records if r["method"] == method and r["condition"] == cond]
+            if not rows:
+                continue
+            entry = _stats(rows)
+            entry["per_object"] = {
+                kind: _stats([r for r in rows if r["object"] == kind])
+                for kind in dict.fromkeys(r["object"] for r in rows)
+            }
+            summary[method][cond] = entry
+    return summary
+
+
+def markdown_table(summary: dict) -> str:
+    """Markdown table: one row per method, condition and object (and "all")."""
+    lines = [
+        "| method | condition | object | scenes | success | median t err (cm) "
+        "| median r err (deg) | s / scene | visible | occluded |",
+        "|---|---|---|---:|---:|---:|---:|---:|---:|---:|",
+    ]
+    for method in ("nbp", "open3d"):
+        for cond, entry in summary.get(method, {}).items():
+            rows = [*entry["per_object"].items(), ("**all**", entry)]
+            for kind, s in rows:
+                lines.append(
+                    f"| {method} | {cond} | {kind} | {s['n_scenes']} "
+                    f"| {100 * s['success_rate']:.0f}% "
+                    f"| {100 * s['median_translation_error_m']:.2f} "
+                    f"| {s['median_rotation_error_deg']:.1f} | {s['seconds_per_scene']:.2f} "
+                    f"| {100 * s['mean_visible_fraction']:.0f}% "
+                    f"| {100 * s['occluded_scenes']:.0f}% |"
+                )
+    return "\n".join(lines)
+
+
+def write_results(summary: dict, out: Path, title: str = "Pose estimation") -> str:
+    """Write ``summary.json`` and ``results.md`` to ``out``; returns the Markdown table."""
+    out.mkdir(parents=True, exist_ok=True)
+    table = markdown_table(summary)
+    (out / "summary.json").write_text(
+        json.dumps(_jsonable(summary), indent=2, allow_nan=False, default=str)
+    )
+    note = (
+        f"Success: translation error < {100 * SUCCESS_TRANSLATION_M:g} cm and rotation error "
+        f"< {SUCCESS_ROTATION_DEG:g} deg, modulo the object's symmetry. Seconds per scene: "
+        "patch extraction plus the method (rendering excluded). Visible: the target's visible "
+        "pixels over its pixels with the distractors removed, in the most occluded camera "
+        f"(mean); occluded: scenes where that is below {100 * OCCLUDED:.0f}%."
+    )
+    (out / "results.md").write_text(f"# {title}\n\n{table}\n\n{note}\n")
+    return table

@@ -1,0 +1,342 @@
+"""Hierarchical object models: a Markov tree of features over SE(3) (paper Sect. 3.3).
+
+- A *primitive feature* is an appearance class of patches (k-means on the two side colours).
+  Its instances in the object are the object-frame frames of the patches of that class.
+- A *meta-feature* pairs two features. Its frame sits at the centroid of the primitive
+  instances below it, with the object's orientation; it has one instance in the object.
+  Learning pairs, greedily, the two features whose instances are jointly most compact: the
+  child poses in the new parent's frame are then most concentrated (most strongly correlated).
+- Each edge parent -> child holds a compatibility potential psi: an ``SE3KDE`` of the child's
+  instance poses in the parent's frame (one particle for a meta-feature child).
+- The root's world pose X_root gives the object pose X_root ∘ inverse(root frame).
+
+Poses are (..., 7) ``[t, qx, qy, qz, qw]`` (roma XYZW); see ``vistask.se3``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+from scipy.cluster.vq import kmeans2
+from torch import Tensor
+
+from vistask.se3 import SE3KDE, identity_poses, relative
+from vistask.vision import Patches
+
+MIN_PATCHES_PER_CLASS = 3
+"""An appearance class needs at least this many instances to become a primitive feature."""
+
+
+@dataclass
+class Feature:
+    """One node of the model's Markov tree.
+
+    Attributes:
+        children: indices of child features (empty for a primitive feature).
+        parent: index of the parent, None for the root.
+        appearance: the appearance class of a primitive feature, None for a meta-feature.
+        frame: (7,) pose of the feature's (single) instance in the object frame, for a
+            meta-feature; None for a primitive feature (it has many instances).
+        potential: psi(parent, self): density of this feature's pose in the parent's frame;
+            None for the root.
+    """
+
+    children: tuple[int, ...] = ()
+    parent: int | None = None
+    appearance: int | None = None
+    frame: Tensor | None = None
+    potential: SE3KDE | None = None
+
+    @property
+    def is_primitive(self) -> bool:
+        return self.appearance is not None
+
+
+@dataclass
+class ModelConfig:
+    """Learning parameters.
+
+    Attributes:
+        n_classes: number of appearance classes (k-means clusters) before dropping small ones.
+        sigma_t: position bandwidth (metres) of the primitive potentials.
+        sigma_r: orientation bandwidth (radians) of the primitive potentials.
+        meta_sigma_t, meta_sigma_r: bandwidth of meta-feature potentials (one exact particle).
+        class_radius: an observed colour pair farther than this factor times the class's RMS
+            radius from every centre belongs to no class (clutter of another appearance).
+        seed: k-means seed.
+    """
+
+    n_classes: int = 8
+    sigma_t: float = 0.004
+    sigma_r: float = 0.25
+    meta_sigma_t: float = 0.002
+    meta_sigma_r: float = 0.05
+    class_radius: float = 2.5
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        if self.n_classes < 1:
+            raise ValueError(f"n_classes must be >= 1, got {self.n_classes}")
+        if min(self.sigma_t, self.sigma_r, self.meta_sigma_t, self.meta_sigma_r) <= 0:
+            raise ValueError("bandwidths must be positive")
+        if self.class_radius <= 0:
+            raise ValueError(f"class_radius must be positive, got {self.class_radius}")
+
+
+def appearance_descriptors(colors: Tensor) -> Tensor:
+    """(N, 2, 3) side colours (darker first) -> (N, 6) appearance descriptors."""
+    if colors.dim() != 3 or colors.shape[1:] != (2, 3):
+        raise ValueError(f"colors must have shape (N, 2, 3), got {tuple(colors.shape)}")
+    return colors.reshape(-1, 6).float()
+
+
+@dataclass
+class ObjectModel:
+    """A learned hierarchical object model (see the module docstring).
+
+    Attributes:
+        name: object name.
+        centres: (K, 6) appearance-class centres (side colours).
+        radii: (K,) accept radius of each class in descriptor space.
+        features: the Markov tree; primitives first (feature k has appearance class k),
+            the root last.
+        patches: (N) the object-frame patches it was learned from (for drawing, baselines).
+        labels: (N,) appearance class of each patch.
+        grasp_density: optional ``SE3KDE`` of gripper poses in the object frame (psi_og).
+        config: the learning parameters.
+    """
+
+    name: str
+    centres: Tensor
+    radii: Tensor
+    features: list[Feature]
+    patches: Patches
+    labels: Tensor
+    grasp_density: SE3KDE | None = None
+    config: ModelConfig = field(default_factory=ModelConfig)
+    _instances: dict[int, Tensor] = field(default_factory=dict, init=False, repr=False)
+
+    # --- learning --------------------------------------------------------------------------
+    @classmethod
+    def learn(
+        cls, patches: Patches, name: str = "object", config: ModelConfig | None = None
+    ) -> ObjectModel:
+        """Learn a model from an object-frame patch set.
+
+        Args:
+            patches: (N) patches with normals, in the object frame.
+            name: object name.
+            config: learning parameters.
+
+        Raises:
+            ValueError: patches without normals, or too few patches for a model.
+        """
+        cfg = config or ModelConfig()
+        if patches.normals is None:
+            raise ValueError("learning needs patches with normals (full patch frames)")
+        need = 2 * MIN_PATCHES_PER_CLASS
+        if len(patches) < need:
+            raise ValueError(
+                f"too few patches to learn a model: {len(patches)} (need at least {need})"
+            )
+        patches = patches.to("cpu")
+        desc = appearance_descriptors(patches.colors)
+        centres, labels = _kmeans(desc, min(cfg.n_classes, len(patches)), cfg.seed)
+        # Small classes are noise: merge their patches into the nearest big class (until
+        # every class is big; reassignment can leave a class short).
+        while True:
+            counts = torch.bincount(labels, minlength=len(centres))
+            big = counts >= MIN_PATCHES_PER_CLASS
+            if big.all():
+                break
+            if not big.any():
+                raise ValueError("no appearance class has enough patches")
+            centres = centres[big]
+            labels = torch.cdist(desc, centres).argmin(dim=1)
+        sq = ((desc - centres[labels]) ** 2).sum(dim=1)
+        rms = torch.stack([sq[labels == k].mean().sqrt() for k in range(len(centres))])
+        radii = cfg.class_radius * rms.clamp_min(0.02)
+        features = _build_tree(patches.frames(), labels, len(centres), cfg)
+        return cls(name, centres, radii, features, patches, labels, None, cfg)
+
+    # --- structure ---------------------------------------------------------------------------
+    @property
+    def n_classes(self) -> int:
+        return self.centres.shape[0]
+
+    @property
+    def root(self) -> int:
+        return len(self.features) - 1
+
+    def leaves(self) -> list[int]:
+        """Indices of the primitive features (= their appearance classes)."""
+        return [i for i, f in enumerate(self.features) if f.is_primitive]
+
+    def structure(self) -> tuple:
+        """The tree as nested tuples of appearance classes, e.g. ((0, 2), 1)."""
+
+        def nest(i: int):
+            f = self.features[i]
+            return f.appearance if f.is_primitive else tuple(nest(c) for c in f.children)
+
+        return nest(self.root)
+
+    def depth(self) -> int:
+        """Number of edges on the longest root-to-leaf path."""
+
+        def d(i: int) -> int:
+            kids = self.features[i].children
+            return 0 if not kids else 1 + max(d(c) for c in kids)
+
+        return d(self.root)
+
+    def bottom_up_order(self) -> list[int]:
+        """Meta-feature indices, children before parents."""
+        return [i for i, f in enumerate(self.features) if not f.is_primitive]
+
+    def instances(self, k: int) -> Tensor:
+        """(N_k, 7) object-frame frames of the patches of appearance class ``k``."""
+        if k not in self._instances:
+            self._instances[k] = self.patches.select(self.labels == k).frames()
+        return self._instances[k]
+
+    def instance_colors(self, k: int) -> Tensor:
+        """(N_k, 6) appearance descriptors of the patches of appearance class ``k``."""
+        return appearance_descriptors(self.patches.colors[self.labels == k])
+
+    # --- appearance --------------------------------------------------------------------------
+    def classify(self, colors: Tensor) -> Tensor:
+        """Appearance class of observed patches: (N, 2, 3) colours -> (N,) class or -1."""
+        desc = appearance_descriptors(colors).to(self.centres.device)
+        if len(desc) == 0:
+            return torch.zeros(0, dtype=torch.long, device=desc.device)
+        dist = torch.cdist(desc, self.centres)
+        best, k = dist.min(dim=1)
+        return torch.where(best <= self.radii[k], k, torch.full_like(k, -1))
+
+    # --- persistence -------------------------------------------------------------------------
+    def state_dict(self) -> dict:
+        grasp = None if self.grasp_density is None else self.grasp_density.state_dict()
+        feats = [
+            {
+                "children": list(f.children),
+                "parent": f.parent,
+                "appearance": f.appearance,
+                "frame": f.frame,
+                "potential": None if f.potential is None else f.potential.state_dict(),
+            }
+            for f in self.features
+        ]
+        return {
+            "name": self.name,
+            "centres": self.centres.cpu(),
+            "radii": self.radii.cpu(),
+            "features": feats,
+            "patches": {k: v for k, v in self.patches.to("cpu").__dict__.items()},
+            "labels": self.labels.cpu(),
+            "grasp_density": grasp,
+            "config": self.config.__dict__,
+        }
+
+    def save(self, path: str | Path) -> None:
+        """Save the model (plain dict of tensors, torch.save)."""
+        torch.save(self.state_dict(), path)
+
+    @classmethod
+    def load(cls, path: str | Path) -> ObjectModel:
+        """Load a model written by ``save``."""
+        state = torch.load(path, map_location="cpu", weights_only=True)
+        features = [
+            Feature(
+                tuple(f["children"]),
+                f["parent"],
+                f["appearance"],
+                f["frame"],
+                None if f["potential"] is None else _kde_from_state(f["potential"]),
+            )
+            for f in state["features"]
+        ]
+        grasp = state["grasp_density"]
+        return cls(
+            state["name"],
+            state["centres"],
+            state["radii"],
+            features,
+            Patches(**state["patches"]),
+            state["labels"],
+            None if grasp is None else _kde_from_state(grasp),
+            ModelConfig(**state["config"]),
+        )
+
+
+def _kde_from_state(state: dict) -> SE3KDE:
+    return SE3KDE(
+        state["points"],
+        state["weights"],
+        sigma_t=state["sigma_t"],
+        sigma_r=state["sigma_r"],
+        kernel=state["kernel"],
+    )
+
+
+def _kmeans(desc: Tensor, k: int, seed: int) -> tuple[Tensor, Tensor]:
+    """(N, D) descriptors -> (k, D) centres and (N,) labels (scipy k-means++, seeded)."""
+    data = desc.double().numpy()
+    # Duplicate descriptors can make k-means++ pick fewer distinct seeds than k.
+    k = min(k, len(np.unique(data.round(4), axis=0)))
+    centres, labels = kmeans2(data, k, minit="++", seed=np.random.default_rng(seed))
+    return torch.from_numpy(centres).float(), torch.from_numpy(labels).long()
+
+
+def _build_tree(frames: Tensor, labels: Tensor, n_classes: int, cfg: ModelConfig) -> list[Feature]:
+    """Agglomerate appearance classes into a binary Markov tree.
+
+    Args:
+        frames: (N, 7) object-frame patch frames.
+        labels: (N,) appearance class per patch.
+        n_classes: K classes; features 0..K-1 are the primitives.
+
+    Returns:
+        the features, root last, with their potentials.
+    """
+    features = [Feature(appearance=k) for k in range(n_classes)]
+    members: dict[int, Tensor] = {k: frames[labels == k, :3] for k in range(n_classes)}
+    active = list(range(n_classes))
+    while len(active) > 1:
+        # The merge whose instances are most compact gives the most concentrated potentials.
+        best: tuple[float, int, int] | None = None
+        for a_pos, a in enumerate(active):
+            for b in active[a_pos + 1 :]:
+                pts = torch.cat([members[a], members[b]])
+                spread = float(((pts - pts.mean(dim=0)) ** 2).sum(dim=1).mean())
+                if best is None or spread < best[0]:
+                    best = (spread, a, b)
+        assert best is not None
+        _, a, b = best
+        new = len(features)
+        members[new] = torch.cat([members[a], members[b]])
+        features.append(Feature(children=(a, b)))
+        features[a].parent = features[b].parent = new
+        active = [i for i in active if i not in (a, b)] + [new]
+    if n_classes == 1:  # a lone class still gets a meta-feature root, so the object has a frame
+        members[1] = members[0]
+        features.append(Feature(children=(0,)))
+        features[0].parent = 1
+    for i, f in enumerate(features):
+        if not f.is_primitive:
+            f.frame = identity_poses(1)[0]
+            f.frame[:3] = members[i].mean(dim=0)
+    for f in features:
+        if f.parent is None:
+            continue
+        parent_frame = features[f.parent].frame
+        if f.is_primitive:
+            poses = relative(parent_frame, frames[labels == f.appearance])
+            f.potential = SE3KDE(poses, sigma_t=cfg.sigma_t, sigma_r=cfg.sigma_r)
+        else:
+            poses = relative(parent_frame, f.frame)[None]
+            f.potential = SE3KDE(poses, sigma_t=cfg.meta_sigma_t, sigma_r=cfg.meta_sigma_r)
+    return features

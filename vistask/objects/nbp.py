@@ -1,0 +1,415 @@
+"""Nonparametric belief propagation over an object model's Markov tree (paper Sect. 3.3).
+
+Every density is an ``SE3KDE`` over world poses of a feature's frame.
+
+- Evidence: the observed scene patches of appearance class k, as a density of their frames,
+  is the observation potential phi_k of primitive feature k.
+- Bottom-up: a primitive feature's message to its parent p is its evidence pushed through
+  psi_pk: X_p = X_k ∘ inverse(r), X_k an observed frame, r a particle of psi_pk (each observed
+  patch votes for every parent pose it could belong to). A meta-feature multiplies its
+  incoming messages by importance sampling (proposal: the mixture of the messages; a floor
+  keeps a child without evidence, e.g. occluded, from vetoing) and pushes the product to its
+  own parent the same way.
+- The root's belief, mapped to the object frame, gives pose hypotheses (its modes, by mean
+  shift); each is scored by the top-down prediction of every primitive instance against the
+  evidence (how much of the model the scene explains), best first.
+- Top-down: the root's belief is pushed down through the potentials (X_c = X_p ∘ r) and
+  reweighted by each child's bottom-up belief (meta) or evidence (primitive), which gives a
+  belief for every feature.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import roma
+import torch
+from torch import Tensor
+
+from vistask.objects.model import ObjectModel, appearance_descriptors
+from vistask.se3 import SE3KDE, compose, inverse, kernels
+from vistask.vision import Patches
+
+NORMAL_TOLERANCE = 0.5
+"""Radians; the normal-agreement scale of the refinement's soft correspondences."""
+
+
+def _normals(frames: Tensor) -> Tensor:
+    """(..., 7) patch frames -> (..., 3) their z axes (the surface normals)."""
+    z = torch.zeros_like(frames[..., :3])
+    z[..., 2] = 1.0
+    return roma.quat_action(frames[..., 3:], z, is_normalized=True)
+
+
+@dataclass
+class NBPConfig:
+    """Inference parameters.
+
+    Attributes:
+        n_particles: particles per message and belief.
+        sigma_t, sigma_r: bandwidth (metres, radians) of messages and beliefs; wider than the
+            potentials because a patch's orientation error moves its vote by the lever arm.
+        evidence_sigma_t, evidence_sigma_r: bandwidth of the observation potentials.
+        floor: a child message counts at least ``floor`` times its typical value, so a
+            feature without evidence (occluded) lowers a pose's weight but does not zero it.
+        cutoff: SE(3) kernel cut-off in multiples of sigma_t (grid evaluation), or None for
+            dense evaluation, which is faster at these particle counts: votes crowd around
+            the true pose, where the grid saves little.
+        n_modes: pose hypotheses kept (several object instances, or ambiguous poses).
+        mode_starts: mean-shift starts for the modes.
+        refine_sigma_t: position scale (metres) of the final top-down refinement; 0 disables.
+        refine_iters: iterations of that refinement.
+        color_sigma: scale of the colour similarity (descriptor distance) used when checking
+            and refining hypotheses against observed patches.
+        top_down: also compute every feature's top-down belief.
+    """
+
+    n_particles: int = 2000
+    sigma_t: float = 0.01
+    sigma_r: float = 0.3
+    evidence_sigma_t: float = 0.004
+    evidence_sigma_r: float = 0.35
+    floor: float = 0.05
+    cutoff: float | None = None
+    n_modes: int = 4
+    mode_starts: int = 48
+    refine_sigma_t: float = 0.006
+    refine_iters: int = 3
+    color_sigma: float = 0.1
+    top_down: bool = False
+
+    def __post_init__(self) -> None:
+        if self.n_particles < 1 or self.n_modes < 1 or self.mode_starts < 1:
+            raise ValueError("n_particles, n_modes and mode_starts must be >= 1")
+        if min(self.sigma_t, self.sigma_r, self.evidence_sigma_t, self.evidence_sigma_r) <= 0:
+            raise ValueError("bandwidths must be positive")
+        bad_cutoff = self.cutoff is not None and self.cutoff <= 0
+        if self.floor < 0 or bad_cutoff or self.refine_sigma_t < 0:
+            raise ValueError("floor and refine_sigma_t must be >= 0, cutoff > 0")
+
+
+@dataclass
+class Evidence:
+    """Observations bound to one primitive feature.
+
+    Attributes:
+        density: phi_k, a density of the world frames of the matching scene patches (M of them).
+        colors: (M, 6) their appearance descriptors.
+    """
+
+    density: SE3KDE
+    colors: Tensor
+
+
+@dataclass
+class NBPResult:
+    """Output of ``infer``.
+
+    Attributes:
+        poses: (H, 7) object-pose hypotheses (world), best first.
+        scores: (H,) top-down support of each: the soft count of model patches whose
+            predicted pose matches an observed patch of the same appearance.
+        object_belief: density of the object pose (the root's belief in the object frame).
+        messages: feature index -> bottom-up message to its parent (None without evidence).
+        beliefs: feature index -> bottom-up belief of meta-features, and top-down beliefs of
+            every feature when requested.
+        evidence: primitive feature -> its observations (None when nothing matched).
+    """
+
+    poses: Tensor
+    scores: Tensor
+    object_belief: SE3KDE
+    messages: dict[int, SE3KDE | None] = field(default_factory=dict)
+    beliefs: dict[int, SE3KDE] = field(default_factory=dict)
+    evidence: dict[int, Evidence | None] = field(default_factory=dict)
+
+    @property
+    def pose(self) -> Tensor:
+        """(7,) the best hypothesis."""
+        return self.poses[0]
+
+
+def scene_evidence(
+    model: ObjectModel, patches: Patches, config: NBPConfig | None = None, device=None
+) -> dict[int, Evidence | None]:
+    """Observation potentials: per primitive feature, a density of the matching patch frames.
+
+    Args:
+        model: the object model.
+        patches: (M) world-frame scene patches with normals.
+        config: inference parameters (evidence bandwidth).
+        device: device of the densities (default: the patches').
+
+    Raises:
+        ValueError: no patches, or patches without normals.
+    """
+    cfg = config or NBPConfig()
+    if len(patches) == 0:
+        raise ValueError("empty scene: no patches to match the model against")
+    if patches.normals is None:
+        raise ValueError("scene patches need normals (full patch frames)")
+    device = device or patches.device
+    classes = model.classify(patches.colors.cpu()).to(device)
+    frames = patches.frames().to(device)
+    colors = appearance_descriptors(patches.colors).to(device)
+    out: dict[int, Evidence | None] = {}
+    for i in model.leaves():
+        mine = classes == model.features[i].appearance
+        out[i] = None
+        if mine.any():
+            density = SE3KDE(
+                frames[mine], sigma_t=cfg.evidence_sigma_t, sigma_r=cfg.evidence_sigma_r
+            )
+            out[i] = Evidence(density, colors[mine])
+    return out
+
+
+def push_up(
+    density: SE3KDE,
+    potential: SE3KDE,
+    n: int,
+    sigma_t: float,
+    sigma_r: float,
+    generator: torch.Generator,
+) -> SE3KDE:
+    """Message to the parent: X_p = X_c ∘ inverse(r), X_c ~ ``density``, r ~ ``potential``.
+
+    With few enough pairs every (particle, potential particle) pair votes once (weighted);
+    otherwise n pairs are drawn by their weights.
+
+    Returns:
+        a density of the parent's pose with bandwidth (sigma_t, sigma_r).
+    """
+    device = density.device
+    pot_points = potential.points.to(device)
+    pot_weights = potential.weights.to(device)
+    m, r = len(density), len(pot_points)
+    if m * r <= n:
+        i = torch.arange(m, device=device).repeat_interleave(r)
+        j = torch.arange(r, device=device).repeat(m)
+        weights = density.weights[i] * pot_weights[j]
+    else:
+        i = torch.multinomial(density.weights, n, replacement=True, generator=generator)
+        j = torch.multinomial(pot_weights, n, replacement=True, generator=generator)
+        weights = None
+    votes = compose(density.points[i], inverse(pot_points[j]))
+    return SE3KDE(votes, weights, sigma_t=sigma_t, sigma_r=sigma_r)
+
+
+def multiply(
+    messages: list[SE3KDE],
+    n: int,
+    floor: float,
+    cutoff: float | None,
+    generator: torch.Generator,
+) -> SE3KDE:
+    """Product of messages by importance sampling from their mixture.
+
+    Candidates are drawn from the equal mixture of the messages' particles; each gets weight
+    prod_c (f_c(x) + floor_c) / mean_c f_c(x), floor_c = ``floor`` times the median of f_c at
+    its own particles.
+
+    Args:
+        messages: C >= 1 densities over the same variable.
+        n: number of candidates.
+
+    Returns:
+        the product density (bandwidth of the first message).
+    """
+    if len(messages) == 1:
+        return messages[0]
+    first = messages[0]
+    device = first.device
+    points = torch.cat([m.points for m in messages])
+    mix = torch.cat([m.weights / len(messages) for m in messages])
+    idx = torch.multinomial(mix, min(n, len(points)), replacement=True, generator=generator)
+    x = points[torch.unique(idx)]
+    values = torch.stack([m.evaluate(x, cutoff=cutoff) for m in messages])  # (C, n)
+    log_w = -values.mean(dim=0).clamp_min(1e-30).log()
+    for m, v in zip(messages, values, strict=True):
+        typical = m.evaluate(m.points, cutoff=cutoff).median() if floor > 0 else 0.0
+        log_w = log_w + (v + floor * typical).clamp_min(1e-30).log()
+    w = torch.softmax(log_w, dim=0)
+    return SE3KDE(x, w.to(device), sigma_t=first.sigma_t, sigma_r=first.sigma_r)
+
+
+def infer(
+    model: ObjectModel,
+    patches: Patches,
+    config: NBPConfig | None = None,
+    device: torch.device | str | None = None,
+    seed: int = 0,
+) -> NBPResult:
+    """Detect the object and estimate its pose in a scene by NBP.
+
+    Args:
+        model: the learned object model.
+        patches: (M) world-frame scene patches (with normals).
+        config: inference parameters.
+        device: where to compute (default CPU).
+        seed: seed of the sampling.
+
+    Returns:
+        the pose hypotheses and the densities computed on the way.
+
+    Raises:
+        ValueError: empty scene, or no scene patch matches the model's appearance.
+    """
+    cfg = config or NBPConfig()
+    device = torch.device(device or "cpu")
+    gen = torch.Generator(device=device).manual_seed(seed)
+    patches = patches.to(device)
+    evidence = scene_evidence(model, patches, cfg, device)
+    if all(e is None for e in evidence.values()):
+        raise ValueError(f"no scene patch matches the appearance of {model.name!r}")
+
+    messages: dict[int, SE3KDE | None] = {}
+    beliefs: dict[int, SE3KDE] = {}
+    for i in model.leaves():
+        ev, pot = evidence[i], model.features[i].potential
+        messages[i] = (
+            None
+            if ev is None or pot is None
+            else push_up(ev.density, pot, cfg.n_particles, cfg.sigma_t, cfg.sigma_r, gen)
+        )
+    for i in model.bottom_up_order():
+        feature = model.features[i]
+        incoming = [messages[c] for c in feature.children if messages[c] is not None]
+        if not incoming:
+            messages[i] = None
+            continue
+        beliefs[i] = multiply(incoming, cfg.n_particles, cfg.floor, cfg.cutoff, gen)
+        pot = feature.potential
+        messages[i] = (
+            None
+            if pot is None
+            else push_up(beliefs[i], pot, cfg.n_particles, cfg.sigma_t, cfg.sigma_r, gen)
+        )
+
+    root = beliefs[model.root]
+    to_object = inverse(model.features[model.root].frame.to(device))
+    object_belief = SE3KDE(
+        compose(root.points, to_object), root.weights, sigma_t=cfg.sigma_t, sigma_r=cfg.sigma_r
+    )
+    candidates, _ = object_belief.modes(k=cfg.n_modes, n_starts=cfg.mode_starts, generator=gen)
+    match = SceneMatch.build(model, evidence, cfg)
+    if cfg.refine_sigma_t > 0:
+        candidates = torch.stack(
+            [match.refine(p, cfg.refine_sigma_t, cfg.refine_iters) for p in candidates]
+        )
+    scores = match.support(candidates, cfg.evidence_sigma_t, cfg.evidence_sigma_r)
+    order = torch.argsort(scores, descending=True)
+    result = NBPResult(candidates[order], scores[order], object_belief, messages, beliefs, evidence)
+    if cfg.top_down:
+        result.beliefs.update(top_down(model, result, cfg, gen))
+    return result
+
+
+@dataclass
+class SceneMatch:
+    """Model instances against scene observations, for top-down checks of object poses.
+
+    Attributes:
+        instances: (N, 7) object-frame frames of every model patch of a primitive feature.
+        observed: (M, 7) world frames of the scene patches bound to a primitive feature.
+        affinity: (N, M) same primitive feature times colour similarity exp(-d^2 / 2 s^2).
+    """
+
+    instances: Tensor
+    observed: Tensor
+    affinity: Tensor
+
+    @classmethod
+    def build(
+        cls, model: ObjectModel, evidence: dict[int, Evidence | None], config: NBPConfig
+    ) -> SceneMatch:
+        inst, obs, inst_c, obs_c, inst_l, obs_l = [], [], [], [], [], []
+        for leaf, ev in evidence.items():
+            if ev is None:
+                continue
+            k = model.features[leaf].appearance
+            inst.append(model.instances(k).to(ev.colors))
+            inst_c.append(model.instance_colors(k).to(ev.colors))
+            inst_l.append(torch.full((len(inst[-1]),), leaf, device=ev.colors.device))
+            obs.append(ev.density.points)
+            obs_c.append(ev.colors)
+            obs_l.append(torch.full((len(obs[-1]),), leaf, device=ev.colors.device))
+        same = torch.cat(inst_l)[:, None] == torch.cat(obs_l)[None]
+        d2 = torch.cdist(torch.cat(inst_c), torch.cat(obs_c)).square()
+        affinity = same * torch.exp(-0.5 * d2 / config.color_sigma**2)
+        return cls(torch.cat(inst), torch.cat(obs), affinity)
+
+    def predict(self, poses: Tensor) -> Tensor:
+        """(H, 7) object poses -> (H, N, 7) world frames of the model instances."""
+        return compose(poses[:, None], self.instances[None])
+
+    def support(self, poses: Tensor, sigma_t: float, sigma_r: float) -> Tensor:
+        """(H, 7) object poses -> (H,) soft count of model patches whose predicted frame
+        (SE(3) kernel of bandwidth sigma_t, sigma_r, peak 1) and colours match an observed
+        patch of the same primitive feature."""
+        pred = self.predict(poses)
+        d2 = torch.cdist(pred[..., :3], self.observed[None, :, :3]).square()
+        dot = (pred[..., 3:] @ self.observed[:, 3:].T).abs()
+        kappa = kernels.quaternion_kappa(sigma_r)
+        kern = torch.exp(-0.5 * d2 / sigma_t**2 + kappa * (dot - 1.0)) * self.affinity
+        return kern.amax(dim=2).sum(dim=1)
+
+    def refine(self, pose: Tensor, sigma_t: float, iters: int) -> Tensor:
+        """Sharpen one hypothesis (7,) -> (7,): each predicted instance is pulled to the
+        kernel-weighted mean of the matching observed positions (position kernel at scale
+        ``sigma_t``, normal agreement, affinity), then the weighted rigid fit of the model
+        to the pulled points (Kabsch) gives the new pose."""
+        obs_t, obs_n = self.observed[:, :3], _normals(self.observed)
+        for _ in range(iters):
+            pred = self.predict(pose[None])[0]
+            kern = torch.exp(-0.5 * torch.cdist(pred[:, :3], obs_t).square() / sigma_t**2)
+            # Axial normal agreement keeps patches of other faces out of the match.
+            cos = (_normals(pred) @ obs_n.T).abs()
+            kern = kern * torch.exp((cos - 1.0) / (1.0 - math.cos(NORMAL_TOLERANCE)))
+            kern = kern * self.affinity
+            total = kern.sum(dim=1)
+            keep = total > 1e-6
+            if int(keep.sum()) < 3:
+                break
+            target = (kern[keep] @ obs_t) / total[keep, None]
+            R, t = roma.rigid_points_registration(
+                self.instances[keep, :3], target, weights=total[keep].clamp(max=1.0)
+            )
+            pose = torch.cat([t, roma.rotmat_to_unitquat(R)])
+        return pose
+
+
+def top_down(
+    model: ObjectModel, result: NBPResult, config: NBPConfig, generator: torch.Generator
+) -> dict[int, SE3KDE]:
+    """Top-down pass: every feature's belief given the root's (X_c = X_p ∘ r, r ~ psi_pc,
+    reweighted by the child's bottom-up belief or evidence).
+
+    Returns:
+        feature index -> belief of its world pose.
+    """
+    cfg = config
+    root = model.root
+    out: dict[int, SE3KDE] = {root: result.beliefs[root]}
+    stack = [root]
+    while stack:
+        p = stack.pop()
+        parent = out[p]
+        for c in model.features[p].children:
+            pot = model.features[c].potential
+            assert pot is not None
+            n = cfg.n_particles
+            i = torch.multinomial(parent.weights, n, replacement=True, generator=generator)
+            j = torch.multinomial(pot.weights.to(parent.device), n, True, generator=generator)
+            x = compose(parent.points[i], pot.points.to(parent.device)[j])
+            ev = result.evidence.get(c)
+            local = result.beliefs.get(c) if c in result.beliefs else ev and ev.density
+            w = None
+            if local is not None:
+                w = local.evaluate(x, cutoff=cfg.cutoff)
+                w = None if not (w.sum() > 0) else w
+            out[c] = SE3KDE(x, w, sigma_t=cfg.sigma_t, sigma_r=cfg.sigma_r)
+            if not model.features[c].is_primitive:
+                stack.append(c)
+    return out

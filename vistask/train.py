@@ -1,0 +1,147 @@
+"""Train RLVC on the visual maze and score it against the oracle (``scripts/train_rlvc.py``)."""
+
+from __future__ import annotations
+
+import time
+from dataclasses import asdict
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+
+from vistask.agents import RLVCAgent
+from vistask.envs import MazeOracle, VisualMazeEnv, evaluate_policy, start_positions
+from vistask.envs.maze_plots import percept_grid, plot_policy, plot_values
+from vistask.logging import print_table, run_dir, tensorboard, write_summary
+
+PAPER = {"stages": 84, "classes": 205, "selected_features": 200, "vocabulary_size": 2298}
+
+
+def agent_policy(agent: RLVCAgent):
+    """The agent as a batched maze ``Policy`` (it sees percepts only, never positions)."""
+    return lambda percepts, positions: agent.predict(percepts)[0]
+
+
+def train_rlvc(
+    env_id: str = "vistask/VisualMaze-v0",
+    env_kwargs: dict | None = None,
+    interactions: int = 10_000,
+    n_words: int = 2048,
+    alpha: float = 0.05,
+    min_count: int = 10,
+    max_stages: int = 300,
+    eval_starts: int = 100,
+    eval_every: int = 10,
+    seed: int = 0,
+    out: str | Path | None = None,
+    progress: bool = True,
+) -> dict:
+    """Learn visual classes on a maze, log every stage, write pictures and ``summary.json``.
+
+    Args:
+        env_id, env_kwargs: the maze (``gym.make`` arguments).
+        interactions: size of the interaction database.
+        n_words, alpha, min_count, max_stages: RLVC settings (see ``RLVCAgent``).
+        eval_starts: number of fixed start positions of the evaluation.
+        eval_every: evaluate the greedy policy every this many stages (and at the end).
+        seed: seeds collection and the vocabulary.
+        out: run directory (default ``runs/train_rlvc-<time>``).
+        progress: show progress bars.
+
+    Returns:
+        The summary written to ``summary.json``.
+    """
+    start = time.perf_counter()
+    out = run_dir("train_rlvc", out)
+    env = gym.make(env_id, **(env_kwargs or {}))
+    maze = env.unwrapped
+    if not isinstance(maze, VisualMazeEnv):
+        raise TypeError(f"train_rlvc scores policies with the maze oracle; {env_id} is no maze")
+    starts = start_positions(maze.geometry, eval_starts)
+    oracle = MazeOracle.solve(maze.geometry)
+    oracle_return = evaluate_policy(maze, oracle.as_policy(), starts).mean
+
+    agent = RLVCAgent(
+        env, n_words=n_words, alpha=alpha, min_count=min_count, max_stages=max_stages, seed=seed
+    )
+    writer = tensorboard(out / "tensorboard")
+
+    def log_stage(record) -> None:
+        for key in ("classes", "selected_features", "mean_abs_td", "splits"):
+            writer.add_scalar(f"rlvc/{key}", getattr(record, key), record.stage)
+        if record.greedy_return is not None:
+            writer.add_scalar("rlvc/greedy_return", record.greedy_return, record.stage)
+            writer.add_scalar(
+                "rlvc/return_ratio", record.greedy_return / oracle_return, record.stage
+            )
+
+    agent.learn(
+        interactions,
+        evaluate=lambda a: evaluate_policy(maze, agent_policy(a), starts).mean,
+        eval_every=eval_every,
+        progress_bar=progress,
+        on_stage=log_stage,
+    )
+    learned = time.perf_counter()
+    rlvc_return = agent.rlvc.history[-1].greedy_return
+    writer.close()
+
+    agent.save(out / "rlvc_agent.pt")
+    classes = percept_grid(maze, lambda images: agent.classifier.classify(images).numpy(), 50)
+    free = ~np.isnan(classes)
+    index = np.nan_to_num(classes).astype(int)
+    values = np.where(free, agent.rlvc.values().numpy()[index], np.nan)
+    plot_values(
+        maze,
+        {"oracle (true position)": oracle.values, "RLVC (percepts)": values},
+        out / "value_functions.png",
+        title="Fig. 4: optimal vs RLVC value function",
+    )
+    actions = np.where(free, agent.rlvc.q.argmax(1).numpy()[index], 0)
+    plot_policy(maze, actions[::2, ::2], out / "rlvc_policy.png", title="RLVC greedy policy")
+    plot_policy(maze, oracle.policy[::2, ::2], out / "oracle_policy.png", title="Oracle policy")
+
+    rlvc = agent.rlvc
+    summary = {
+        "env_id": env_id,
+        "env_kwargs": env_kwargs or {},
+        "return_ratio": rlvc_return / oracle_return,
+        "rlvc_return": rlvc_return,
+        "oracle_return": oracle_return,
+        "stages": len(rlvc.history),
+        "classes": rlvc.n_classes,
+        "selected_features": len(rlvc.tree.selected_features),
+        "vocabulary_size": agent.extractor.n_features,
+        "interactions": agent.num_timesteps,
+        "seconds": time.perf_counter() - start,
+        "learn_seconds": learned - start,
+        "seconds_split": {
+            "collect": agent.timing["collect"],
+            "feature_extraction": agent.timing["extract"],
+            "vocabulary": agent.timing["vocabulary"],
+            "q_solving": rlvc.timing.solve,
+            "split_search": rlvc.timing.split,
+            "evaluation": rlvc.timing.evaluate,
+        },
+        "policy_agreement_with_oracle": float((actions == oracle.policy)[free].mean()),
+        "paper": PAPER,
+        "history": [asdict(r) for r in rlvc.history],
+        "seed": seed,
+    }
+    write_summary(out, summary)
+    print_table(
+        {
+            "return ratio (RLVC / oracle)": summary["return_ratio"],
+            "RLVC mean discounted return": rlvc_return,
+            "oracle mean discounted return": oracle_return,
+            "stages (paper 84)": summary["stages"],
+            "visual classes (paper 205)": summary["classes"],
+            "selected features (paper 200)": summary["selected_features"],
+            "vocabulary size (paper 2298)": summary["vocabulary_size"],
+            "interactions": summary["interactions"],
+            **{f"seconds: {k}": v for k, v in summary["seconds_split"].items()},
+            "seconds: whole run": summary["seconds"],
+        },
+        title=f"RLVC on {env_id} -> {out}",
+    )
+    return summary
