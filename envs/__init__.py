@@ -6,6 +6,7 @@ robosuite takes seconds.
 """
 
 from gymnasium.envs.registration import register, registry
+
 from vistask.envs.maze_oracle import (
     EvaluationResult,
     MazeOracle,

@@ -49,8 +49,8 @@ from robosuite.models.arenas import TableArena
 from robosuite.models.objects import BoxObject, MujocoObject
 from robosuite.models.tasks import ManipulationTask
 from scipy.spatial.transform import Rotation, Slerp
-from vistask.envs.tabletop import CAMERAS, OBJECTS, TABLE_SIZE, TABLE_TOP_Z
 
+from vistask.envs.tabletop import CAMERAS, OBJECTS, TABLE_SIZE, TABLE_TOP_Z
 from vistask.grasp.learning import Workspace
 from vistask.vision import (
     Camera,

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 from gymnasium.utils import seeding
+
 from vistask.envs.visual_maze import MazeGeometry, VisualMazeEnv
 
 # A batched policy: (percepts (n, H, W, 3) uint8, true positions (n, 2)) -> (n,) actions.

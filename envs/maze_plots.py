@@ -10,6 +10,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
+
 from vistask.envs.visual_maze import ACTION_DIRECTIONS, VisualMazeEnv, draw_maze
 
 

@@ -13,6 +13,7 @@ import cv2
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
+
 from vistask.envs.tapestry import make_tapestry
 
 Rect = tuple[float, float, float, float]  # (x0, y0, x1, y1), x0 < x1, y0 < y1
@@ -88,7 +89,7 @@ class MazeGeometry:
     size: float = 1.0
     obstacles: tuple[Rect, ...] = DEFAULT_OBSTACLES
     exits: tuple[Rect, ...] = DEFAULT_EXITS
-    step: float = 0.05
+    step: float = 0.1
     noise_std: float | None = None
     gamma: float = 0.9
     reward: float = 100.0
@@ -179,7 +180,7 @@ class VisualMazeEnv(gym.Env):
         size: float = 1.0,
         obstacles: tuple[Rect, ...] = DEFAULT_OBSTACLES,
         exits: tuple[Rect, ...] = DEFAULT_EXITS,
-        step: float = 0.05,
+        step: float = 0.1,
         noise_std: float | None = None,
         gamma: float = 0.9,
         window: int = 64,

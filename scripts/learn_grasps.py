@@ -2,6 +2,8 @@
 
     python scripts/learn_grasps.py --out runs/grasps          # 3 objects, 300 trials each
     python scripts/learn_grasps.py --quick                    # a small smoke run
+    python scripts/learn_grasps.py --out runs/grasps --nbp-only --nbp-trials 20
+                                   # grasp with NBP poses using the densities learned there
 
 Writes DIR/summary.json, TensorBoard scalars, and per object the hypothesis and empirical
 densities, the learner (all trials) and a picture of both densities (DIR/<object>/).

@@ -20,8 +20,8 @@ import torch
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
-from vistask.envs.tabletop import OBJECTS, benchmark_scenes, make_scene, object_patches
 
+from vistask.envs.tabletop import OBJECTS, benchmark_scenes, make_scene, object_patches
 from vistask.vision import view_patches
 from vistask.vision.draw import draw_patches
 

@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 import torch
-from vistask.envs import VisualMazeEnv
 
+from vistask.envs import VisualMazeEnv
 from vistask.features import SiftExtractor, VisualFeatureExtractor, kmeans
 
 

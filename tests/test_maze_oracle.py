@@ -2,6 +2,7 @@
 
 import numpy as np
 import pytest
+
 from vistask.envs import MazeGeometry, MazeOracle, VisualMazeEnv, evaluate_policy, start_positions
 
 GAMMA = 0.9

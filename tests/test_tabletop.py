@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 import roma
 import torch
+
 from vistask.envs.tabletop import (
     OBJECTS,
     TABLE_TOP_Z,
@@ -13,7 +14,6 @@ from vistask.envs.tabletop import (
     object_symmetry,
     tabletop_world,
 )
-
 from vistask.vision import pose_error
 
 SIZE = 128

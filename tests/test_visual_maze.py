@@ -3,8 +3,9 @@
 import gymnasium as gym
 import numpy as np
 import pytest
-import vistask.envs  # noqa: F401  (registers the environments)
 from gymnasium.utils.env_checker import check_env
+
+import vistask.envs  # noqa: F401  (registers the environments)
 from vistask.envs import MazeGeometry, VisualMazeEnv
 from vistask.envs.tapestry import make_tapestry
 

@@ -19,7 +19,7 @@ class Classifier(Protocol):
     def __call__(self, image: np.ndarray) -> int: ...
 
 
-class VisualFeatures(gym.ObservationWrapper):
+class VisualFeatures(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
     """Image observation -> ``MultiBinary(F)`` presence vector of the F visual features.
 
     Example:
@@ -34,7 +34,8 @@ class VisualFeatures(gym.ObservationWrapper):
 
     def __init__(self, env: gym.Env, extractor: VisualFeatureExtractor) -> None:
         check_image_space(env.observation_space, "VisualFeatures")
-        super().__init__(env)
+        gym.utils.RecordConstructorArgs.__init__(self, extractor=extractor)
+        gym.ObservationWrapper.__init__(self, env)
         self.extractor = extractor
         self.observation_space = spaces.MultiBinary(extractor.n_features)
 
@@ -42,7 +43,7 @@ class VisualFeatures(gym.ObservationWrapper):
         return self.extractor(observation)
 
 
-class VisualClasses(gym.ObservationWrapper):
+class VisualClasses(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
     """Image observation -> ``Discrete(m)`` visual class, e.g. learned by RLVC.
 
     Example:
@@ -58,7 +59,8 @@ class VisualClasses(gym.ObservationWrapper):
 
     def __init__(self, env: gym.Env, classifier: Classifier) -> None:
         check_image_space(env.observation_space, "VisualClasses")
-        super().__init__(env)
+        gym.utils.RecordConstructorArgs.__init__(self, classifier=classifier)
+        gym.ObservationWrapper.__init__(self, env)
         self.classifier = classifier
         self.observation_space = spaces.Discrete(classifier.n_classes)
 

@@ -88,6 +88,14 @@ class SiftExtractor:
         self.threads = threads or os.cpu_count() or 1
         self._local = threading.local()
 
+    def __getstate__(self) -> dict:
+        # OpenCV detectors and thread-locals do not pickle; they are rebuilt on demand.
+        return {k: v for k, v in self.__dict__.items() if k != "_local"}
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update(state)
+        self._local = threading.local()
+
     @property
     def descriptor_size(self) -> int:
         return 128 + (2 if self.color_weight > 0 else 0)

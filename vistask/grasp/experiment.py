@@ -253,13 +253,16 @@ def nbp_grasp_trials(
     cameras: tuple[str, ...] = ("front", "left", "right"),
     image_size: int = 256,
     seed: int = 0,
+    patches=None,
 ) -> dict[str, Any]:
     """Grasp with the pose from NBP instead of the ground truth (the paper's full pipeline).
 
     Per held-out placement: render the scene, extract its patches, estimate the object pose
     with NBP on a model learned from the object's patches (``vistask.objects``), compute the
     instance grasp density by eq. (8) from that pose and ``density``, execute the likeliest
-    of ``candidates`` reachable draws.
+    of ``candidates`` reachable draws. ``patches`` (object frame) default to
+    ``object_patches_for(kind)``; pass them when several objects run in one process, since
+    the tabletop renderer must not run after a robot environment's GL context was made.
 
     Returns:
         ``success_rate``, ``trials``, ``median_translation_error`` (m),
@@ -274,7 +277,7 @@ def nbp_grasp_trials(
     from vistask.se3 import identity_poses
     from vistask.vision import pose_error
 
-    patches = object_patches_for(kind)
+    patches = object_patches_for(kind) if patches is None else patches
     if patches is None:
         raise ValueError(f"no object patches for {kind!r}")
     model = ObjectModel.learn(patches, name=kind)
@@ -317,10 +320,13 @@ def run_nbp(out: Path, objects: tuple[str, ...], n_trials: int, candidates: int 
     Adds an ``nbp`` entry per object to ``out/summary.json`` (when it exists) and returns
     the results.
     """
+    all_patches = {kind: object_patches_for(kind) for kind in objects}  # before any robot GL
     results = {}
     for kind in objects:
         density = SE3KDE.load(out / kind / "empirical.pt")
-        results[kind] = nbp_grasp_trials(kind, density, n_trials, candidates)
+        results[kind] = nbp_grasp_trials(
+            kind, density, n_trials, candidates, patches=all_patches[kind]
+        )
     path = out / "summary.json"
     if path.exists():
         summary = json.loads(path.read_text())

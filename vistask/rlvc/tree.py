@@ -37,6 +37,7 @@ class ClassTree:
         self.present: list[int] = [-1]
         self.leaf_class: list[int] = [0]
         self._leaf_of_class: list[int] = [0]
+        self._tensors: dict[torch.device, tuple[torch.Tensor, ...]] = {}  # classify's cache
 
     @property
     def n_classes(self) -> int:
@@ -71,6 +72,7 @@ class ClassTree:
         self.leaf_class[leaf] = -1
         self._leaf_of_class[class_id] = absent
         self._leaf_of_class.append(present)
+        self._tensors.clear()
         return new_class
 
     def classify(self, presence: torch.Tensor) -> torch.Tensor:
@@ -80,16 +82,17 @@ class ClassTree:
                 f"presence must be (N, {self.n_features}), got {tuple(presence.shape)}"
             )
         device = presence.device
-        feature = torch.tensor(self.feature, device=device)
-        absent = torch.tensor(self.absent, device=device)
-        present = torch.tensor(self.present, device=device)
+        if device not in self._tensors:
+            nodes = (self.feature, self.absent, self.present, self.leaf_class)
+            self._tensors[device] = (*(torch.tensor(x, device=device) for x in nodes), self.depth)
+        feature, absent, present, leaf_class, depth = self._tensors[device]
         node = torch.zeros(len(presence), dtype=torch.long, device=device)
         rows = torch.arange(len(presence), device=device)
-        for _ in range(self.depth):
+        for _ in range(depth):
             f = feature[node]
             bit = presence[rows, f.clamp_min(0)].bool()
             node = torch.where(f >= 0, torch.where(bit, present[node], absent[node]), node)
-        return torch.tensor(self.leaf_class, device=device)[node]
+        return leaf_class[node]
 
     def state_dict(self) -> dict:
         return {
@@ -105,6 +108,7 @@ class ClassTree:
         tree = cls(state["n_features"])
         tree.feature, tree.absent = list(state["feature"]), list(state["absent"])
         tree.present, tree.leaf_class = list(state["present"]), list(state["leaf_class"])
+        tree._tensors.clear()
         leaves = {c: node for node, c in enumerate(tree.leaf_class) if c >= 0}
         tree._leaf_of_class = [leaves[c] for c in range(len(leaves))]
         return tree

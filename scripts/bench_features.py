@@ -1,0 +1,29 @@
+"""Benchmark the visual-feature front end on maze percepts: ms and features per percept."""
+
+import argparse
+import json
+
+from vistask.features.bench import bench_features
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument("--percepts", type=int, default=2000)
+    parser.add_argument("--words", type=int, default=2048)
+    parser.add_argument("--env-kwargs", type=json.loads, default={})
+    parser.add_argument("--threads", type=int, default=None, help="extraction threads")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--out", default=None, help="default runs/bench_features-<time>")
+    args = parser.parse_args()
+    bench_features(
+        args.percepts,
+        args.words,
+        args.env_kwargs,
+        threads=args.threads,
+        seed=args.seed,
+        out=args.out,
+    )
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,125 @@
+"""Wrappers and agents: Gymnasium compliance, end-to-end RLVC on a small maze, persistence."""
+
+import gymnasium as gym
+import numpy as np
+import pytest
+import torch
+from gymnasium.utils.env_checker import check_env
+
+from vistask.agents import RLVCAgent, TabularQAgent
+from vistask.envs import MazeOracle, VisualMazeEnv, evaluate_policy, start_positions
+from vistask.features import VisualFeatureExtractor
+from vistask.rlvc import VisualClassifier
+from vistask.train import agent_policy
+from vistask.wrappers import VisualClasses, VisualFeatures
+
+SMALL = dict(
+    obstacles=((0.45, 0.0, 0.55, 0.6),),
+    exits=((0.0, 0.0, 0.2, 0.2), (0.8, 0.0, 1.0, 0.2)),
+    step=0.2,
+    window=64,
+    pixels_per_unit=240.0,
+)
+
+
+@pytest.fixture(scope="module")
+def small_agent() -> RLVCAgent:
+    env = VisualMazeEnv(**SMALL)
+    return RLVCAgent(env, n_words=512, seed=0).learn(4000, progress_bar=False)
+
+
+def test_rlvc_reaches_near_oracle_return_on_a_small_maze(small_agent):
+    maze = small_agent.env.unwrapped
+    starts = start_positions(maze.geometry, 60)
+    oracle = evaluate_policy(maze, MazeOracle.solve(maze.geometry).as_policy(), starts).mean
+    rlvc = evaluate_policy(maze, agent_policy(small_agent), starts).mean
+    rng = np.random.default_rng(0)
+    random = evaluate_policy(maze, lambda obs, pos: rng.integers(4, size=len(obs)), starts).mean
+    assert rlvc >= 0.85 * oracle > random
+    assert small_agent.rlvc.n_classes > 4
+
+
+def test_visual_features_wrapper_passes_check_env(small_agent):
+    env = VisualFeatures(gym.make("vistask/VisualMaze-v0", **SMALL), small_agent.extractor)
+    assert env.observation_space == gym.spaces.MultiBinary(512)
+    check_env(env.unwrapped)  # the raw env
+    check_env(env, skip_render_check=True)
+    obs, _ = env.reset(seed=0)
+    assert obs.shape == (512,) and obs.dtype == np.int8 and obs.sum() > 0
+
+
+def test_visual_classes_wrapper_matches_the_agent_and_passes_check_env(small_agent):
+    env = VisualClasses(gym.make("vistask/VisualMaze-v0", **SMALL), small_agent.classifier)
+    check_env(env, skip_render_check=True)
+    assert env.observation_space == gym.spaces.Discrete(small_agent.rlvc.n_classes)
+    raw = VisualMazeEnv(**SMALL)
+    image, _ = raw.reset(seed=3)
+    state, _ = env.reset(seed=3)
+    assert state == small_agent.classifier(image)
+
+
+def test_wrappers_reject_non_image_observations(small_agent):
+    cartpole = gym.make("CartPole-v1")
+    with pytest.raises(TypeError, match="image observations"):
+        VisualFeatures(cartpole, small_agent.extractor)
+    with pytest.raises(TypeError, match="image observations"):
+        VisualClasses(cartpole, small_agent.classifier)
+    with pytest.raises(TypeError, match="image observations"):
+        RLVCAgent(cartpole)
+
+
+def test_agent_predicts_single_images_and_batches(small_agent):
+    maze = VisualMazeEnv(**SMALL)
+    images = np.stack([maze.percept_at(p) for p in start_positions(maze.geometry, 5)])
+    batch, _ = small_agent.predict(images)
+    singles = [small_agent.predict(image)[0] for image in images]
+    assert batch.tolist() == singles
+    with pytest.raises(TypeError, match="uint8"):
+        small_agent.predict(images.astype(np.float32))
+
+
+def test_agent_save_load_round_trip_gives_identical_classes(small_agent, tmp_path):
+    small_agent.save(tmp_path / "agent.pt")
+    loaded = RLVCAgent.load(tmp_path / "agent.pt", VisualMazeEnv(**SMALL))
+    maze = VisualMazeEnv(**SMALL)
+    images = [maze.percept_at(p) for p in start_positions(maze.geometry, 30)]
+    assert torch.equal(loaded.classifier.classify(images), small_agent.classifier.classify(images))
+    assert np.array_equal(
+        loaded.predict(np.stack(images))[0], small_agent.predict(np.stack(images))[0]
+    )
+
+
+def test_classifier_load_refuses_a_mismatched_vocabulary(small_agent, tmp_path):
+    small_agent.classifier.save(tmp_path / "classes.pt")
+    other = VisualFeatureExtractor(
+        small_agent.extractor.keypoints, small_agent.extractor.centroids + 1.0
+    )
+    with pytest.raises(ValueError, match="vocabulary mismatch"):
+        VisualClassifier.load(tmp_path / "classes.pt", other)
+    same = VisualClassifier.load(tmp_path / "classes.pt", small_agent.extractor)
+    assert same.n_classes == small_agent.classifier.n_classes
+
+
+def test_unlearned_agent_explains_itself():
+    agent = RLVCAgent(VisualMazeEnv(**SMALL))
+    with pytest.raises(RuntimeError, match="not learned"):
+        agent.predict(np.zeros((64, 64, 3), np.uint8))
+
+
+def test_tabular_q_learning_solves_a_deterministic_gridworld(tmp_path):
+    env = gym.make("FrozenLake-v1", is_slippery=False)
+    agent = TabularQAgent(env, learning_rate=0.5, gamma=0.9, epsilon=0.3, seed=0)
+    agent.learn(6000)
+    state, _ = env.reset(seed=0)
+    for _ in range(20):
+        state, reward, terminated, _, _ = env.step(int(agent.predict(state)[0]))
+        if terminated:
+            break
+    assert reward == 1.0
+    agent.save(tmp_path / "q.pt")
+    loaded = TabularQAgent.load(tmp_path / "q.pt", env)
+    np.testing.assert_array_equal(loaded.q, agent.q)
+    with pytest.raises(ValueError, match="state ids"):
+        agent.predict(99)
+    with pytest.raises(TypeError, match="Discrete observation"):
+        TabularQAgent(gym.make("vistask/VisualMaze-v0"))
