@@ -22,7 +22,7 @@ def main() -> None:
     parser.add_argument("--min-count", type=int, default=10)
     parser.add_argument("--max-stages", type=int, default=300)
     parser.add_argument("--eval-starts", type=int, default=100)
-    parser.add_argument("--eval-every", type=int, default=10)
+    parser.add_argument("--eval-every", type=int, default=25)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument(
         "--out", default=None, help="run directory (default runs/train_rlvc-<time>)"

@@ -31,7 +31,7 @@ def train_rlvc(
     min_count: int = 10,
     max_stages: int = 300,
     eval_starts: int = 100,
-    eval_every: int = 10,
+    eval_every: int = 25,
     seed: int = 0,
     out: str | Path | None = None,
     progress: bool = True,
