@@ -26,8 +26,9 @@ class RLVCAgent:
 
     ``learn`` runs, top to bottom: collect a database with the exploration policy, extract
     keypoints of every percept once, fit the vocabulary (first database only), build the
-    interaction database, run RLVC stages; with ``refresh_every`` it repeats with a fresh
-    database (collected epsilon-greedily on the current classes) every that many stages.
+    interaction database, run RLVC stages; with ``database_size`` it splits the budget into
+    databases of that size, each collected epsilon-greedily on the current classes (the first
+    at random) and used for ``refresh_every`` stages.
 
     Example:
         >>> env = gym.make("vistask/VisualMaze-v0")
@@ -43,8 +44,9 @@ class RLVCAgent:
         bonferroni: correct alpha for the number of candidate features (see ``find_splits``).
         max_stages: stage cap.
         max_episode_steps: exploration episodes are cut after this many steps.
-        refresh_every: collect a fresh database every this many stages (None: one database).
-        epsilon: exploration rate when collecting on the current classes (refresh only).
+        database_size: interactions per database (None: one database of the whole budget).
+        refresh_every: stages run on each database when ``database_size`` is set.
+        epsilon: exploration rate when collecting on the current classes (refreshed databases).
         gamma: discount (default ``env.unwrapped.gamma``, else 0.99).
         keypoints: descriptor extractor (default ``SiftExtractor()``).
         soft_ratio: soft vocabulary assignment (see ``VisualFeatureExtractor``).
@@ -60,7 +62,8 @@ class RLVCAgent:
         bonferroni: bool = False,
         max_stages: int = 300,
         max_episode_steps: int = 50,
-        refresh_every: int | None = None,
+        database_size: int | None = None,
+        refresh_every: int = 20,
         epsilon: float = 0.2,
         gamma: float | None = None,
         keypoints: SiftExtractor | None = None,
@@ -78,7 +81,8 @@ class RLVCAgent:
             bonferroni,
         )
         self.max_stages, self.max_episode_steps = max_stages, max_episode_steps
-        self.refresh_every, self.epsilon, self.seed = refresh_every, epsilon, seed
+        self.database_size, self.refresh_every = database_size, refresh_every
+        self.epsilon, self.seed = epsilon, seed
         self.gamma = 0.99 if gamma is None else float(gamma)
         self.keypoints = keypoints or SiftExtractor()
         self.soft_ratio = soft_ratio
@@ -110,10 +114,8 @@ class RLVCAgent:
             raise ValueError("this agent has no env: pass one to RLVCAgent.load(path, env)")
         if total_timesteps < 1:
             raise ValueError(f"total_timesteps must be >= 1, got {total_timesteps}")
-        rounds = 1
-        if self.refresh_every is not None:
-            rounds = max(1, -(-self.max_stages // self.refresh_every))
-        per_round = max(1, total_timesteps // rounds)
+        per_round = self.database_size or total_timesteps
+        rounds = max(1, total_timesteps // per_round)
         for k in range(rounds):
             t0 = time.perf_counter()
             policy = None if self.rlvc is None else self._exploration_policy()
@@ -149,6 +151,10 @@ class RLVCAgent:
             self.timing["vocabulary"] += t3 - t2
             self.num_timesteps += len(transitions)
             stages = self.max_stages if rounds == 1 else self.refresh_every
+            if k == rounds - 1:  # the last database runs until nothing splits
+                stages = self.max_stages - len(self.rlvc.history)
+            if stages <= 0:
+                break
             history_before = len(self.rlvc.history)
             self.rlvc.learn(
                 db,
@@ -206,6 +212,7 @@ class RLVCAgent:
                     "bonferroni": self.bonferroni,
                     "max_stages": self.max_stages,
                     "max_episode_steps": self.max_episode_steps,
+                    "database_size": self.database_size,
                     "refresh_every": self.refresh_every,
                     "epsilon": self.epsilon,
                     "gamma": self.gamma,

@@ -11,12 +11,12 @@ Markdown table), DIR/pictures/ (estimates drawn over the images) and TensorBoard
 from __future__ import annotations
 
 import argparse
-import time
 from pathlib import Path
 
 import torch
 from torch.utils.tensorboard import SummaryWriter
 
+from vistask.logging import run_dir
 from vistask.objects import BenchConfig, NBPConfig, run_benchmark, write_results
 
 
@@ -41,7 +41,7 @@ def main() -> None:
     parser.add_argument("--device", default="cpu", help="device of NBP (e.g. cuda)")
     parser.add_argument("--pictures", type=int, default=1, help="pictures per object, condition")
     args = parser.parse_args()
-    out = args.out or Path("runs") / f"bench_pose-{time.strftime('%Y%m%d-%H%M%S')}"
+    out = run_dir("bench_pose", args.out)
     torch.set_num_threads(args.threads)
     cfg = BenchConfig(
         objects=tuple(args.objects),
@@ -51,7 +51,6 @@ def main() -> None:
         methods=tuple(args.methods),
         nbp=NBPConfig(n_particles=args.particles, refine_iters=args.refine_iters),
     )
-    out.mkdir(parents=True, exist_ok=True)
     with SummaryWriter(str(out)) as writer:
         summary = run_benchmark(cfg, out, writer, pictures=args.pictures)
     print(write_results(summary, out, "Pose estimation: NBP vs Open3D"))

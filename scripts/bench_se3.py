@@ -9,11 +9,11 @@ from __future__ import annotations
 
 import argparse
 import json
-import time
 from pathlib import Path
 
 import torch
 
+from vistask.logging import run_dir
 from vistask.se3.benchmark import run_benchmark
 
 
@@ -35,8 +35,7 @@ def main() -> None:
     )
     parser.add_argument("--repeats", type=int, default=5)
     args = parser.parse_args()
-    out = args.out or Path("runs") / f"bench_se3-{time.strftime('%Y%m%d-%H%M%S')}"
-    out.mkdir(parents=True, exist_ok=True)
+    out = run_dir("bench_se3", args.out)
     torch.set_num_threads(args.threads)
 
     devices = [args.device] if args.device else ["cpu"] + (["cuda"] * torch.cuda.is_available())

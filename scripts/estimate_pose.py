@@ -10,12 +10,12 @@ camera's image at the estimated pose (paper Fig. 14).
 from __future__ import annotations
 
 import argparse
-import time
 from pathlib import Path
 
 import torch
 from torch.utils.tensorboard import SummaryWriter
 
+from vistask.logging import run_dir
 from vistask.objects import (
     CONDITIONS,
     BenchConfig,
@@ -39,7 +39,7 @@ def main() -> None:
     parser.add_argument("--device", default="cpu", help="device of NBP (e.g. cuda)")
     parser.add_argument("--pictures", type=int, default=5, help="scenes drawn")
     args = parser.parse_args()
-    out = args.out or Path("runs") / f"estimate_pose-{time.strftime('%Y%m%d-%H%M%S')}"
+    out = run_dir("estimate_pose", args.out)
     torch.set_num_threads(args.threads)
     cfg = BenchConfig(
         objects=(args.object,),
@@ -49,7 +49,6 @@ def main() -> None:
         device=args.device,
         nbp=NBPConfig(n_particles=args.particles),
     )
-    out.mkdir(parents=True, exist_ok=True)
     model = learn_model(args.object, cfg.cameras, cfg.n_rotations, cfg.image_size, cfg.voxel)
     model.save(out / "model.pt")
     with SummaryWriter(str(out)) as writer:

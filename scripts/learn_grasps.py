@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import time
 from pathlib import Path
 
 os.environ.setdefault("MUJOCO_GL", "egl")
@@ -25,6 +24,7 @@ from vistask.grasp.experiment import (
     run_experiment,
     run_nbp,
 )
+from vistask.logging import run_dir
 
 
 def main() -> None:
@@ -54,7 +54,7 @@ def main() -> None:
         parser.error("the budget is at most 300 trials per object")
     if args.quick:
         args.cycles, args.trials_per_cycle, args.eval_trials = 2, 10, 10
-    out = args.out or Path("runs") / f"learn_grasps-{time.strftime('%Y%m%d-%H%M%S')}"
+    out = run_dir("learn_grasps", args.out)
     config = ExperimentConfig(
         objects=tuple(args.objects),
         hypothesis=args.hypothesis,

@@ -22,6 +22,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 
 from vistask.envs.tabletop import OBJECTS, benchmark_scenes, make_scene, object_patches
+from vistask.logging import run_dir
 from vistask.vision import view_patches
 from vistask.vision.draw import draw_patches
 
@@ -36,8 +37,7 @@ def main() -> None:
     parser.add_argument("--image-size", type=int, default=256)
     parser.add_argument("--threads", type=int, default=1, help="torch CPU threads")
     args = parser.parse_args()
-    out = args.out or Path("runs") / f"show_patches-{time.strftime('%Y%m%d-%H%M%S')}"
-    out.mkdir(parents=True, exist_ok=True)
+    out = run_dir("show_patches", args.out)
     torch.set_num_threads(args.threads)
 
     summary: dict[str, float | str] = {"target": args.target, "image_size": args.image_size}

@@ -123,3 +123,13 @@ def test_tabular_q_learning_solves_a_deterministic_gridworld(tmp_path):
         agent.predict(99)
     with pytest.raises(TypeError, match="Discrete observation"):
         TabularQAgent(gym.make("vistask/VisualMaze-v0"))
+
+
+def test_refreshed_databases_are_collected_on_the_current_classes():
+    agent = RLVCAgent(
+        VisualMazeEnv(**SMALL), n_words=128, database_size=1500, refresh_every=3, epsilon=0.5
+    )
+    agent.learn(3000, progress_bar=False)
+    assert agent.num_timesteps == 3000
+    assert agent.rlvc.n_classes > 1
+    assert len(agent.rlvc.history) >= 4  # three stages on the first database, more on the second

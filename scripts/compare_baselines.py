@@ -1,0 +1,54 @@
+"""Compare RLVC with SB3 DQN/PPO (CnnPolicy on percepts), tabular Q-learning on the true
+position and random actions, at the same interaction budgets, over several seeds.
+
+python scripts/compare_baselines.py                      # full run: 5 seeds, budgets 1k..100k
+python scripts/compare_baselines.py --quick              # tiny budgets (what the tests run)
+python scripts/compare_baselines.py --budgets 1000 2000 5000 10000 20000 --seeds 3
+tensorboard --logdir runs/compare-<time>/tensorboard     # eval/return of every method overlays
+"""
+
+import argparse
+import json
+
+from vistask.compare import DEFAULT_BUDGETS, METHODS, CompareConfig, compare
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--env", default="vistask/VisualMaze-v0")
+    parser.add_argument("--env-kwargs", type=json.loads, default={}, help="JSON dict for gym.make")
+    parser.add_argument("--methods", nargs="+", choices=METHODS, default=None)
+    parser.add_argument("--budgets", nargs="+", type=int, default=None, help=f"{DEFAULT_BUDGETS}")
+    parser.add_argument("--seeds", type=int, default=None, help="number of seeds (default 5)")
+    parser.add_argument("--seed0", type=int, default=0, help="first seed")
+    parser.add_argument("--eval-starts", type=int, default=None, help="default 100")
+    parser.add_argument("--words", type=int, default=None, help="RLVC vocabulary (default 2048)")
+    parser.add_argument("--grid", type=int, default=10, help="tabular baseline cells per side")
+    parser.add_argument("--device", default="cpu", help="torch device of the SB3 networks")
+    parser.add_argument("--quick", action="store_true", help="tiny budgets, 2 seeds")
+    parser.add_argument("--out", default=None, help="run directory (default runs/compare-<time>)")
+    args = parser.parse_args()
+    overrides = {
+        "env_id": args.env,
+        "env_kwargs": args.env_kwargs,
+        "seed0": args.seed0,
+        "grid": args.grid,
+        "device": args.device,
+    }
+    for key, value in (
+        ("methods", args.methods),
+        ("budgets", args.budgets),
+        ("seeds", args.seeds),
+        ("eval_starts", args.eval_starts),
+        ("n_words", args.words),
+    ):
+        if value is not None:
+            overrides[key] = value
+    config = CompareConfig.quick(**overrides) if args.quick else CompareConfig(**overrides)
+    compare(config, args.out)
+
+
+if __name__ == "__main__":
+    main()

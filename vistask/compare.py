@@ -1,0 +1,507 @@
+"""RLVC against Stable-Baselines3 DQN/PPO, tabular Q-learning on the true state, and random
+actions, on the same interaction budgets, seeds and evaluation starts
+(``scripts/compare_baselines.py``).
+
+Every method is scored at every budget B (environment interactions) by ``evaluate_policy``:
+the mean discounted return from the same fixed start positions with the same noise. RLVC
+learns from one fixed database, so its checkpoint at B is a fresh agent learned on B
+interactions; the other learners train once per seed and are evaluated when they pass B.
+Curves are aggregated over seeds with the interquartile mean (IQM) and percentile-bootstrap
+confidence intervals.
+"""
+
+from __future__ import annotations
+
+import csv
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+from scipy import stats
+
+from vistask.agents import RLVCAgent, TabularQAgent
+from vistask.envs import MazeOracle, VisualMazeEnv, evaluate_policy, start_positions
+from vistask.envs.maze_oracle import Policy
+from vistask.logging import print_table, run_dir, tensorboard, write_summary
+
+METHODS = ("rlvc", "dqn", "ppo", "tabular", "random")
+DEFAULT_BUDGETS = (1_000, 2_000, 5_000, 10_000, 20_000, 50_000, 100_000)
+QUICK_BUDGETS = (300, 1_000)
+THRESHOLDS = (0.9, 0.75)  # fractions of the oracle's return; 0.9 is the issue's target
+
+
+# -- privileged-state baseline ------------------------------------------------------------
+def grid_cells(positions: np.ndarray, size: float, grid: int) -> np.ndarray:
+    """(N, 2) positions in [0, size]^2 -> (N,) cell ids ``row * grid + column`` of a
+    ``grid x grid`` partition (row from y, column from x)."""
+    positions = np.asarray(positions, dtype=float).reshape(-1, 2)
+    ij = np.clip((positions / size * grid).astype(int), 0, grid - 1)
+    return ij[:, 1] * grid + ij[:, 0]
+
+
+class GridCells(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
+    """Maze image observation -> ``Discrete(grid**2)`` cell of the *true* position.
+
+    The privileged-state oracle of the paper's comparisons: tabular Q-learning on this
+    wrapper sees where the agent is, never the percept.
+
+    Args:
+        env: a visual maze (its unwrapped env has ``position`` (2,) and ``geometry.size``).
+        grid: cells per side.
+    """
+
+    def __init__(self, env: gym.Env, grid: int = 10) -> None:
+        if not isinstance(env.unwrapped, VisualMazeEnv):
+            raise TypeError(f"GridCells needs a VisualMazeEnv, got {type(env.unwrapped).__name__}")
+        if grid < 1:
+            raise ValueError(f"grid must be >= 1, got {grid}")
+        gym.utils.RecordConstructorArgs.__init__(self, grid=grid)
+        gym.ObservationWrapper.__init__(self, env)
+        self.grid = grid
+        self.observation_space = spaces.Discrete(grid * grid)
+
+    def observation(self, observation: np.ndarray) -> int:
+        maze = self.env.unwrapped
+        return int(grid_cells(maze.position, maze.geometry.size, self.grid)[0])
+
+
+# -- configuration ------------------------------------------------------------------------
+@dataclass
+class CompareConfig:
+    """Everything that defines a comparison run.
+
+    Args:
+        env_id, env_kwargs: the environment (``gym.make`` arguments); a visual maze, because
+            the oracle and the evaluation need the true geometry.
+        methods: subset of ``METHODS``.
+        budgets: increasing interaction budgets at which every method is evaluated.
+        seeds: number of seeds (seed k uses ``seed0 + k``).
+        seed0: first seed.
+        eval_starts: number of fixed evaluation start positions.
+        n_words: RLVC vocabulary size.
+        grid: cells per side of the tabular baseline's state discretization.
+        dqn_kwargs, ppo_kwargs: extra SB3 constructor arguments (override the defaults).
+        device: torch device of the SB3 networks.
+    """
+
+    env_id: str = "vistask/VisualMaze-v0"
+    env_kwargs: dict = field(default_factory=dict)
+    methods: tuple[str, ...] = METHODS
+    budgets: tuple[int, ...] = DEFAULT_BUDGETS
+    seeds: int = 5
+    seed0: int = 0
+    eval_starts: int = 100
+    n_words: int = 2048
+    grid: int = 10
+    dqn_kwargs: dict = field(default_factory=dict)
+    ppo_kwargs: dict = field(default_factory=dict)
+    device: str = "cpu"
+
+    def __post_init__(self) -> None:
+        self.methods, self.budgets = tuple(self.methods), tuple(int(b) for b in self.budgets)
+        unknown = set(self.methods) - set(METHODS)
+        if unknown or not self.methods:
+            raise ValueError(f"methods must be a non-empty subset of {METHODS}, got {unknown}")
+        if not self.budgets or min(self.budgets) < 1 or list(self.budgets) != sorted(
+            set(self.budgets)
+        ):
+            raise ValueError(f"budgets must be strictly increasing positive ints: {self.budgets}")
+        if self.seeds < 1 or self.eval_starts < 1:
+            raise ValueError("seeds and eval_starts must be >= 1")
+
+    @classmethod
+    def quick(cls, **overrides) -> CompareConfig:
+        """Tiny budgets for tests: two seeds, small SB3 buffers and rollouts, 256 words."""
+        small = {
+            "budgets": QUICK_BUDGETS,
+            "seeds": 2,
+            "eval_starts": 20,
+            "n_words": 256,
+            "dqn_kwargs": {"learning_starts": 100, "buffer_size": 1_000, "train_freq": 8},
+            "ppo_kwargs": {"n_steps": 128, "batch_size": 64, "n_epochs": 2},
+        }
+        return cls(**{**small, **overrides})
+
+    def sb3_kwargs(self, method: str) -> dict:
+        """Constructor arguments of the SB3 baseline ``method`` ("dqn" or "ppo")."""
+        if method == "dqn":
+            # Replay memory of 64x64x3 images: cap it (SB3's default 1M would need 12 GB).
+            base = {
+                "buffer_size": min(50_000, max(self.budgets)),
+                "learning_starts": min(1_000, max(self.budgets) // 10),
+                "exploration_fraction": 0.2,
+            }
+            return {**base, **self.dqn_kwargs}
+        if method == "ppo":
+            return {"n_steps": 512, "batch_size": 64, **self.ppo_kwargs}
+        raise ValueError(f"no SB3 baseline called {method!r}")
+
+
+# -- one run: (method, seed) -> returns at every budget -----------------------------------
+@dataclass
+class RunResult:
+    """Mean evaluation return of one (method, seed) at every budget, and its cost."""
+
+    method: str
+    seed: int
+    budgets: list[int]
+    returns: list[float]
+    train_seconds: float
+    seconds: float
+
+
+Evaluate = Callable[[Policy], float]
+
+
+def _random_policy(seed: int) -> Policy:
+    rng = np.random.default_rng(seed)
+    return lambda percepts, positions: rng.integers(4, size=len(percepts))
+
+
+def _model_policy(model) -> Policy:
+    """An SB3 model (or anything with ``predict``) on percepts, batched."""
+    return lambda percepts, positions: model.predict(percepts, deterministic=True)[0]
+
+
+def _tabular_policy(agent: TabularQAgent, size: float, grid: int) -> Policy:
+    return lambda percepts, positions: agent.predict(grid_cells(positions, size, grid))[0]
+
+
+def run_rlvc(config: CompareConfig, seed: int, evaluate: Evaluate, log) -> tuple[list, float]:
+    """A fresh RLVCAgent per budget (RLVC learns from a fixed database of B interactions)."""
+    returns, train = [], 0.0
+    for budget in config.budgets:
+        env = gym.make(config.env_id, **config.env_kwargs)
+        t0 = time.perf_counter()
+        agent = RLVCAgent(env, n_words=config.n_words, seed=seed)
+        agent.learn(budget, progress_bar=False)
+        train += time.perf_counter() - t0
+        returns.append(evaluate(lambda percepts, positions, a=agent: a.predict(percepts)[0]))
+        log(budget, returns[-1])
+    return returns, train
+
+
+def run_tabular(config: CompareConfig, seed: int, evaluate: Evaluate, log) -> tuple[list, float]:
+    """Q-learning on true-position grid cells, trained once and evaluated at every budget."""
+    env = GridCells(gym.make(config.env_id, **config.env_kwargs), config.grid)
+    agent = TabularQAgent(env, seed=seed)
+    size = env.unwrapped.geometry.size
+    returns, train = [], 0.0
+    for budget in config.budgets:
+        t0 = time.perf_counter()
+        agent.learn(budget - agent.num_timesteps)
+        train += time.perf_counter() - t0
+        returns.append(evaluate(_tabular_policy(agent, size, config.grid)))
+        log(budget, returns[-1])
+    return returns, train
+
+
+def run_random(config: CompareConfig, seed: int, evaluate: Evaluate, log) -> tuple[list, float]:
+    """Uniformly random actions: no learning, the same score at every budget up to noise."""
+    returns = []
+    for budget in config.budgets:
+        returns.append(evaluate(_random_policy(seed + budget)))
+        log(budget, returns[-1])
+    return returns, 0.0
+
+
+def run_sb3(
+    config: CompareConfig, method: str, seed: int, evaluate: Evaluate, log, tb_dir: Path
+) -> tuple[list, float]:
+    """SB3 DQN or PPO with ``CnnPolicy`` on the raw percepts, one ``learn`` call whose
+    callback evaluates the current policy when it passes each budget."""
+    from stable_baselines3 import DQN, PPO
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    budgets, returns = list(config.budgets), []
+    eval_seconds = [0.0]
+
+    class EvaluateAtBudgets(BaseCallback):
+        def _on_step(self) -> bool:
+            while len(returns) < len(budgets) and self.num_timesteps >= budgets[len(returns)]:
+                t0 = time.perf_counter()
+                returns.append(evaluate(_model_policy(self.model)))
+                eval_seconds[0] += time.perf_counter() - t0
+                log(budgets[len(returns) - 1], returns[-1])
+            return len(returns) < len(budgets)
+
+    cls = {"dqn": DQN, "ppo": PPO}[method]
+    env = gym.make(config.env_id, **config.env_kwargs)
+    model = cls(
+        "CnnPolicy",
+        env,
+        seed=seed,
+        device=config.device,
+        tensorboard_log=str(tb_dir),
+        verbose=0,
+        **config.sb3_kwargs(method),
+    )
+    t0 = time.perf_counter()
+    model.learn(
+        total_timesteps=max(budgets), callback=EvaluateAtBudgets(), tb_log_name=f"{method}-sb3"
+    )
+    return returns, time.perf_counter() - t0 - eval_seconds[0]
+
+
+def run_method(
+    config: CompareConfig, method: str, seed: int, starts: np.ndarray, tb_root: Path
+) -> RunResult:
+    """Train and evaluate ``method`` with ``seed``; logs ``eval/return`` against
+    interactions to ``tb_root/<method>-seed<seed>``."""
+    maze = gym.make(config.env_id, **config.env_kwargs).unwrapped
+
+    def evaluate(policy: Policy) -> float:
+        return evaluate_policy(maze, policy, starts).mean
+
+    writer = tensorboard(tb_root / f"{method}-seed{seed}")
+
+    def log(budget: int, value: float) -> None:
+        writer.add_scalar("eval/return", value, budget)
+        writer.flush()
+
+    t0 = time.perf_counter()
+    if method in ("dqn", "ppo"):
+        returns, train = run_sb3(config, method, seed, evaluate, log, tb_root / f"seed{seed}")
+    else:
+        runner = {"rlvc": run_rlvc, "tabular": run_tabular, "random": run_random}[method]
+        returns, train = runner(config, seed, evaluate, log)
+    writer.close()
+    if len(returns) != len(config.budgets):
+        raise RuntimeError(f"{method} produced {len(returns)} of {len(config.budgets)} returns")
+    return RunResult(
+        method, seed, list(config.budgets), returns, train, time.perf_counter() - t0
+    )
+
+
+# -- aggregation --------------------------------------------------------------------------
+def iqm(values: np.ndarray, axis: int = 0) -> np.ndarray:
+    """Interquartile mean: the mean of the middle 50% along ``axis``."""
+    return stats.trim_mean(values, 0.25, axis=axis)
+
+
+def iqm_ci(
+    values: np.ndarray, confidence: float = 0.95, resamples: int = 2000, seed: int = 0
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """IQM over seeds and its percentile-bootstrap confidence interval, per budget.
+
+    Args:
+        values: (S, B) returns of S seeds at B budgets.
+
+    Returns:
+        (B,) IQM, (B,) lower and (B,) upper bounds (equal to the IQM with one seed, where
+        there is nothing to resample).
+    """
+    values = np.asarray(values, dtype=float)
+    if values.ndim != 2:
+        raise ValueError(f"values must be (seeds, budgets), got shape {values.shape}")
+    center = iqm(values)
+    if len(values) < 2 or np.all(values == values[0]):
+        return center, center.copy(), center.copy()
+    res = stats.bootstrap(
+        (values,),
+        iqm,
+        axis=0,
+        confidence_level=confidence,
+        n_resamples=resamples,
+        method="percentile",
+        rng=np.random.default_rng(seed),
+    )
+    low, high = res.confidence_interval
+    return center, np.minimum(low, center), np.maximum(high, center)
+
+
+def interactions_to(budgets: Sequence[int], curve: np.ndarray, target: float) -> int | None:
+    """The first budget at which ``curve`` reaches ``target`` (None if it never does)."""
+    hits = np.flatnonzero(np.asarray(curve) >= target)
+    return int(budgets[hits[0]]) if len(hits) else None
+
+
+def aggregate(
+    results: list[RunResult], budgets: Sequence[int], oracle_return: float
+) -> dict[str, dict]:
+    """Per method: IQM curve with CI, interactions to each threshold (from the IQM, and the
+    interval given by the CI's upper and lower curves), final return and seconds."""
+    methods = list(dict.fromkeys(r.method for r in results))
+    out = {}
+    for method in methods:
+        runs = [r for r in results if r.method == method]
+        values = np.array([r.returns for r in runs])  # (S, B)
+        center, low, high = iqm_ci(values)
+        entry = {
+            "curve": {"iqm": center, "ci_low": low, "ci_high": high, "per_seed": values},
+            "final_return": float(center[-1]),
+            "final_ci": [float(low[-1]), float(high[-1])],
+            "oracle_return": oracle_return,
+            "final_ratio": float(center[-1] / oracle_return),
+            "seconds": float(sum(r.seconds for r in runs)),
+            "train_seconds": float(sum(r.train_seconds for r in runs)),
+            "seeds": [r.seed for r in runs],
+        }
+        for frac in THRESHOLDS:
+            pct = round(frac * 100)
+            entry[f"interactions_to_{pct}pct"] = interactions_to(
+                budgets, center, frac * oracle_return
+            )
+            # Optimistic (upper curve) and pessimistic (lower curve) budgets; None = never.
+            entry[f"interactions_to_{pct}pct_ci"] = [
+                interactions_to(budgets, high, frac * oracle_return),
+                interactions_to(budgets, low, frac * oracle_return),
+            ]
+        out[method] = entry
+    return out
+
+
+def speedups(methods: dict[str, dict]) -> dict[str, float | None]:
+    """Best SB3 interactions-to-threshold divided by RLVC's, per threshold (None when
+    either never reaches it; SB3 never reaching it means the ratio is at least
+    ``max budget / RLVC's``, recorded as ``..._lower_bound``)."""
+    out: dict[str, float | None] = {}
+    if "rlvc" not in methods:
+        return out
+    for frac in THRESHOLDS:
+        key = f"interactions_to_{round(frac * 100)}pct"
+        rlvc = methods["rlvc"][key]
+        sb3 = [methods[m][key] for m in ("dqn", "ppo") if m in methods]
+        reached = [b for b in sb3 if b is not None]
+        name = f"sb3_over_rlvc_{round(frac * 100)}pct"
+        out[name] = min(reached) / rlvc if rlvc and reached else None
+        if rlvc and sb3 and not reached:
+            budgets = methods["rlvc"]["curve"]["budgets"]
+            out[name + "_lower_bound"] = max(budgets) / rlvc
+    return out
+
+
+# -- outputs ------------------------------------------------------------------------------
+def _fmt(value) -> str:
+    if value is None:
+        return "never"
+    return f"{value:.3g}" if isinstance(value, float) else str(value)
+
+
+def markdown_table(methods: dict[str, dict], oracle_return: float) -> str:
+    """One row per method: interactions to 90% / 75% of the oracle, final return, seconds."""
+    lines = [
+        f"Oracle mean discounted return: {oracle_return:.2f}",
+        "",
+        "| method | interactions to 90% oracle | interactions to 75% oracle (extra) "
+        "| final return (IQM [95% CI]) | final / oracle | seconds |",
+        "|---|---|---|---|---|---|",
+    ]
+    for name, m in methods.items():
+        lo, hi = m["final_ci"]
+        lines.append(
+            f"| {name} | {_fmt(m['interactions_to_90pct'])} | {_fmt(m['interactions_to_75pct'])}"
+            f" | {m['final_return']:.2f} [{lo:.2f}, {hi:.2f}] | {m['final_ratio']:.3f}"
+            f" | {m['seconds']:.0f} |"
+        )
+    return "\n".join(lines) + "\n"
+
+
+def write_csv(path: Path, methods: dict[str, dict], budgets: Sequence[int]) -> None:
+    """Long format: method, interactions, iqm, ci_low, ci_high, mean, then one column per seed."""
+    n_seeds = max(len(m["seeds"]) for m in methods.values())
+    with open(path, "w", newline="") as f:
+        writer = csv.writer(f)
+        writer.writerow(
+            ["method", "interactions", "iqm", "ci_low", "ci_high", "mean"]
+            + [f"seed_{k}" for k in range(n_seeds)]
+        )
+        for name, m in methods.items():
+            c = m["curve"]
+            for j, budget in enumerate(budgets):
+                per_seed = c["per_seed"][:, j]
+                writer.writerow(
+                    [name, budget, c["iqm"][j], c["ci_low"][j], c["ci_high"][j], per_seed.mean()]
+                    + list(per_seed)
+                )
+
+
+def plot_curves(path: Path, methods: dict[str, dict], budgets: Sequence[int], oracle: float):
+    """IQM return against interactions (log x), 95% CI bands, oracle and 90% lines."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7, 4.5))
+    for name, m in methods.items():
+        c = m["curve"]
+        (line,) = ax.plot(budgets, c["iqm"], marker="o", label=name)
+        ax.fill_between(budgets, c["ci_low"], c["ci_high"], color=line.get_color(), alpha=0.2)
+    ax.axhline(oracle, color="k", linestyle="--", label="oracle (true position)")
+    ax.axhline(0.9 * oracle, color="k", linestyle=":", label="90% of oracle")
+    ax.set_xscale("log")
+    ax.set_xlabel("environment interactions")
+    ax.set_ylabel("mean discounted return (IQM over seeds)")
+    ax.legend(fontsize="small")
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+# -- the whole comparison -----------------------------------------------------------------
+def compare(
+    config: CompareConfig | None = None, out: str | Path | None = None, progress: bool = True
+) -> dict:
+    """Run every method with every seed, aggregate and write all outputs.
+
+    Writes under ``out`` (default ``runs/compare-<time>/``): ``curves.csv``, ``table.md``,
+    ``curves.png``, ``summary.json`` and ``tensorboard/`` (``<method>-seed<k>`` with
+    ``eval/return`` against interactions for every method, ``seed<k>/<dqn|ppo>-sb3_1`` with
+    SB3's own training logs).
+
+    Args:
+        config: the comparison (default ``CompareConfig()``, the full run).
+        out: run directory.
+        progress: print one line per finished run.
+
+    Returns:
+        The summary written to ``summary.json``.
+    """
+    config = config or CompareConfig()
+    start = time.perf_counter()
+    out = run_dir("compare", out)
+    maze = gym.make(config.env_id, **config.env_kwargs).unwrapped
+    if not isinstance(maze, VisualMazeEnv):
+        raise TypeError(f"the comparison scores policies on a maze; {config.env_id} is no maze")
+    starts = start_positions(maze.geometry, config.eval_starts)
+    oracle_return = evaluate_policy(maze, MazeOracle.solve(maze.geometry).as_policy(), starts).mean
+
+    results = []
+    for method in config.methods:
+        for k in range(config.seeds):
+            result = run_method(config, method, config.seed0 + k, starts, out / "tensorboard")
+            results.append(result)
+            if progress:
+                curve = " ".join(f"{r:.1f}" for r in result.returns)
+                print(f"{method} seed {result.seed}: {curve} ({result.seconds:.0f} s)", flush=True)
+
+    methods = aggregate(results, config.budgets, oracle_return)
+    for m in methods.values():
+        m["curve"]["budgets"] = list(config.budgets)
+    write_csv(out / "curves.csv", methods, config.budgets)
+    table = markdown_table(methods, oracle_return)
+    (out / "table.md").write_text(table)
+    plot_curves(out / "curves.png", methods, config.budgets, oracle_return)
+
+    summary = {
+        "env_id": config.env_id,
+        "config": asdict(config),
+        "oracle_return": oracle_return,
+        "budgets": list(config.budgets),
+        "methods": methods,
+        "ratios": speedups(methods),
+        "runs": [asdict(r) for r in results],
+        "seconds": time.perf_counter() - start,
+    }
+    write_summary(out, summary)
+    print(f"Comparison on {config.env_id} -> {out}")
+    print(table)
+    if summary["ratios"]:
+        print_table({k: _fmt(v) for k, v in summary["ratios"].items()})
+    return summary
