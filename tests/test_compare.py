@@ -1,0 +1,101 @@
+"""The quick comparison: every method yields curves, the table, CSV, plot, TensorBoard logs."""
+
+from __future__ import annotations
+
+import csv
+import json
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+from vistask.compare import (
+    METHODS,
+    CompareConfig,
+    GridCells,
+    aggregate,
+    compare,
+    grid_cells,
+    interactions_to,
+    iqm_ci,
+    RunResult,
+)
+
+
+@pytest.fixture(scope="module")
+def quick_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("compare")
+    return out, compare(CompareConfig.quick(), out, progress=False)
+
+
+def test_quick_comparison_writes_every_output(quick_run):
+    out, summary = quick_run
+    budgets = summary["budgets"]
+    assert set(summary["methods"]) == set(METHODS)
+    on_disk = json.loads((out / "summary.json").read_text())
+    for name in METHODS:
+        m = on_disk["methods"][name]
+        for key in ("interactions_to_90pct", "final_return", "oracle_return", "seconds"):
+            assert key in m
+        assert m["oracle_return"] == pytest.approx(summary["oracle_return"])
+        assert m["interactions_to_90pct"] is None or m["interactions_to_90pct"] in budgets
+        curve = np.array(m["curve"]["per_seed"])
+        assert curve.shape == (2, len(budgets))
+        assert np.all(curve >= 0) and np.all(curve <= m["oracle_return"] * 1.5)
+        assert np.all(np.array(m["curve"]["ci_low"]) <= np.array(m["curve"]["iqm"]) + 1e-9)
+        assert (out / "tensorboard" / f"{name}-seed0").is_dir()
+    # SB3 wrote its own training logs next to the evaluation scalars.
+    assert list((out / "tensorboard" / "seed0").glob("dqn-sb3_*/events.*"))
+    assert list((out / "tensorboard" / "seed1").glob("ppo-sb3_*/events.*"))
+    # The privileged tabular agent is scored from true positions and learns something.
+    assert summary["oracle_return"] > on_disk["methods"]["random"]["final_return"]
+
+    rows = list(csv.DictReader((out / "curves.csv").open()))
+    assert len(rows) == len(METHODS) * len(budgets)
+    assert {r["method"] for r in rows} == set(METHODS)
+    table = (out / "table.md").read_text()
+    assert all(f"| {name} |" in table for name in METHODS)
+    assert (out / "curves.png").read_bytes()[:4] == b"\x89PNG"
+
+
+def test_tensorboard_holds_eval_return_against_interactions(quick_run):
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    out, summary = quick_run
+    acc = EventAccumulator(str(out / "tensorboard" / "rlvc-seed1")).Reload()
+    events = acc.Scalars("eval/return")
+    assert [e.step for e in events] == summary["budgets"]
+    run = next(r for r in summary["runs"] if r["method"] == "rlvc" and r["seed"] == 1)
+    assert [e.value for e in events] == pytest.approx(run["returns"], rel=1e-5)
+
+
+def test_grid_cells_wrapper_follows_the_true_position():
+    env = GridCells(gym.make("vistask/VisualMaze-v0"), grid=10)
+    obs, info = env.reset(seed=3)
+    for _ in range(20):
+        assert obs == grid_cells(info["position"], 1.0, 10)[0]
+        assert env.observation_space.contains(obs)
+        obs, _, terminated, truncated, info = env.step(env.action_space.sample())
+        if terminated or truncated:
+            obs, info = env.reset()
+    corners = np.array([[0.0, 0.0], [0.99, 0.0], [0.0, 0.99], [1.0, 1.0]])
+    assert grid_cells(corners, 1.0, 10).tolist() == [0, 9, 90, 99]
+
+
+def test_aggregation_iqm_ci_and_thresholds():
+    values = np.array([[0.0, 10.0], [1.0, 50.0], [2.0, 60.0], [3.0, 70.0], [100.0, 80.0]])
+    center, low, high = iqm_ci(values)
+    assert center == pytest.approx([2.0, 60.0])  # the outlier 100 is trimmed
+    assert np.all(low <= center) and np.all(center <= high) and np.any(low < high)
+    assert interactions_to([1, 2, 3], np.array([0.0, 5.0, 9.0]), 5.0) == 2
+    assert interactions_to([1, 2, 3], np.array([0.0, 5.0, 9.0]), 10.0) is None
+    runs = [RunResult("a", s, [10, 20], list(v), 1.0, 2.0) for s, v in enumerate(values)]
+    entry = aggregate(runs, [10, 20], oracle_return=60.0)["a"]
+    assert entry["interactions_to_90pct"] == 20 and entry["seconds"] == pytest.approx(10.0)
+
+
+def test_config_rejects_bad_input():
+    with pytest.raises(ValueError, match="methods"):
+        CompareConfig(methods=("a3c",))
+    with pytest.raises(ValueError, match="budgets"):
+        CompareConfig(budgets=(2000, 1000))
