@@ -77,7 +77,7 @@ def plot_policy(env: VisualMazeEnv, actions: np.ndarray, path: str | Path, title
     pixels = points * env.pixels_per_unit
     fig, ax = plt.subplots(figsize=(6, 6))
     ax.imshow(draw_maze(env))
-    length = 0.4 * env.geometry.size / grid * env.pixels_per_unit
+    length = 0.75 * env.geometry.size / grid * env.pixels_per_unit
     ax.quiver(
         pixels[free, 0],
         pixels[free, 1],
@@ -87,7 +87,11 @@ def plot_policy(env: VisualMazeEnv, actions: np.ndarray, path: str | Path, title
         angles="xy",
         scale_units="xy",
         scale=1,
-        width=0.003,
+        width=0.004,
+        headwidth=3,
+        headlength=3,
+        headaxislength=2.5,
+        pivot="middle",
     )
     ax.set_axis_off()
     if title:
