@@ -10,6 +10,8 @@ tensorboard --logdir runs/compare-<time>/tensorboard     # eval/return of every 
 import argparse
 import json
 
+import torch
+
 from vistask.compare import DEFAULT_BUDGETS, METHODS, CompareConfig, compare
 
 
@@ -27,6 +29,9 @@ def main() -> None:
     parser.add_argument("--words", type=int, default=None, help="RLVC vocabulary (default 2048)")
     parser.add_argument("--grid", type=int, default=10, help="tabular baseline cells per side")
     parser.add_argument("--device", default="cpu", help="torch device of the SB3 networks")
+    parser.add_argument(
+        "--threads", type=int, default=None, help="torch CPU threads (1 on a busy machine)"
+    )
     parser.add_argument("--quick", action="store_true", help="tiny budgets, 2 seeds")
     parser.add_argument("--out", default=None, help="run directory (default runs/compare-<time>)")
     args = parser.parse_args()
@@ -46,6 +51,8 @@ def main() -> None:
     ):
         if value is not None:
             overrides[key] = value
+    if args.threads:
+        torch.set_num_threads(args.threads)
     config = CompareConfig.quick(**overrides) if args.quick else CompareConfig(**overrides)
     compare(config, args.out)
 

@@ -8,26 +8,36 @@ import json
 import gymnasium as gym
 import numpy as np
 import pytest
+import torch
 
 from vistask.compare import (
     METHODS,
     CompareConfig,
     GridCells,
+    RunResult,
     aggregate,
     compare,
     grid_cells,
     interactions_to,
     iqm_ci,
-    RunResult,
+    speedups,
 )
 
 
 @pytest.fixture(scope="module")
 def quick_run(tmp_path_factory):
     out = tmp_path_factory.mktemp("compare")
-    return out, compare(CompareConfig.quick(), out, progress=False)
+    # On a loaded 2-core machine, torch's OpenMP threads spin against other processes and
+    # the tiny SB3 networks run 10x slower; one thread keeps this test's time predictable.
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        return out, compare(CompareConfig.quick(), out, progress=False)
+    finally:
+        torch.set_num_threads(threads)
 
 
+@pytest.mark.slow
 def test_quick_comparison_writes_every_output(quick_run):
     out, summary = quick_run
     budgets = summary["budgets"]
@@ -58,6 +68,7 @@ def test_quick_comparison_writes_every_output(quick_run):
     assert (out / "curves.png").read_bytes()[:4] == b"\x89PNG"
 
 
+@pytest.mark.slow
 def test_tensorboard_holds_eval_return_against_interactions(quick_run):
     from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
@@ -99,3 +110,27 @@ def test_config_rejects_bad_input():
         CompareConfig(methods=("a3c",))
     with pytest.raises(ValueError, match="budgets"):
         CompareConfig(budgets=(2000, 1000))
+
+
+def test_speedup_ratio_and_its_interval():
+    def method(to90, ci):
+        return {
+            "interactions_to_90pct": to90,
+            "interactions_to_90pct_ci": ci,
+            "interactions_to_75pct": None,
+            "interactions_to_75pct_ci": [None, None],
+        }
+
+    methods = {
+        "rlvc": method(1000, [500, 2000]),
+        "dqn": method(None, [50_000, None]),
+        "ppo": method(20_000, [10_000, 50_000]),
+    }
+    ratios = speedups(methods, [500, 1000, 2000, 10_000, 20_000, 50_000])
+    assert ratios["sb3_over_rlvc_90pct"] == 20.0
+    assert ratios["sb3_over_rlvc_90pct_ci"] == [5.0, 100.0]
+    assert ratios["sb3_over_rlvc_75pct"] is None
+    methods["ppo"] = method(None, [None, None])
+    ratios = speedups(methods, [500, 1000, 2000, 10_000, 20_000, 50_000])
+    assert ratios["sb3_over_rlvc_90pct"] is None
+    assert ratios["sb3_over_rlvc_90pct_lower_bound"] == 50.0

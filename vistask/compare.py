@@ -106,8 +106,10 @@ class CompareConfig:
         unknown = set(self.methods) - set(METHODS)
         if unknown or not self.methods:
             raise ValueError(f"methods must be a non-empty subset of {METHODS}, got {unknown}")
-        if not self.budgets or min(self.budgets) < 1 or list(self.budgets) != sorted(
-            set(self.budgets)
+        if (
+            not self.budgets
+            or min(self.budgets) < 1
+            or list(self.budgets) != sorted(set(self.budgets))
         ):
             raise ValueError(f"budgets must be strictly increasing positive ints: {self.budgets}")
         if self.seeds < 1 or self.eval_starts < 1:
@@ -154,7 +156,9 @@ class RunResult:
     seconds: float
 
 
+# evaluate(policy) -> mean discounted return from the fixed starts; log(budget, value).
 Evaluate = Callable[[Policy], float]
+Log = Callable[[int, float], None]
 
 
 def _random_policy(seed: int) -> Policy:
@@ -171,8 +175,14 @@ def _tabular_policy(agent: TabularQAgent, size: float, grid: int) -> Policy:
     return lambda percepts, positions: agent.predict(grid_cells(positions, size, grid))[0]
 
 
-def run_rlvc(config: CompareConfig, seed: int, evaluate: Evaluate, log) -> tuple[list, float]:
-    """A fresh RLVCAgent per budget (RLVC learns from a fixed database of B interactions)."""
+def run_rlvc(
+    config: CompareConfig, seed: int, evaluate: Evaluate, log: Log
+) -> tuple[list[float], float]:
+    """A fresh RLVCAgent per budget (RLVC learns from a fixed database of B interactions).
+
+    Every ``run_*`` returns the evaluation return at each budget and the training seconds
+    (evaluation excluded); ``log`` receives each (budget, return) as it is measured.
+    """
     returns, train = [], 0.0
     for budget in config.budgets:
         env = gym.make(config.env_id, **config.env_kwargs)
@@ -185,7 +195,9 @@ def run_rlvc(config: CompareConfig, seed: int, evaluate: Evaluate, log) -> tuple
     return returns, train
 
 
-def run_tabular(config: CompareConfig, seed: int, evaluate: Evaluate, log) -> tuple[list, float]:
+def run_tabular(
+    config: CompareConfig, seed: int, evaluate: Evaluate, log: Log
+) -> tuple[list[float], float]:
     """Q-learning on true-position grid cells, trained once and evaluated at every budget."""
     env = GridCells(gym.make(config.env_id, **config.env_kwargs), config.grid)
     agent = TabularQAgent(env, seed=seed)
@@ -200,7 +212,9 @@ def run_tabular(config: CompareConfig, seed: int, evaluate: Evaluate, log) -> tu
     return returns, train
 
 
-def run_random(config: CompareConfig, seed: int, evaluate: Evaluate, log) -> tuple[list, float]:
+def run_random(
+    config: CompareConfig, seed: int, evaluate: Evaluate, log: Log
+) -> tuple[list[float], float]:
     """Uniformly random actions: no learning, the same score at every budget up to noise."""
     returns = []
     for budget in config.budgets:
@@ -210,8 +224,8 @@ def run_random(config: CompareConfig, seed: int, evaluate: Evaluate, log) -> tup
 
 
 def run_sb3(
-    config: CompareConfig, method: str, seed: int, evaluate: Evaluate, log, tb_dir: Path
-) -> tuple[list, float]:
+    config: CompareConfig, method: str, seed: int, evaluate: Evaluate, log: Log, tb_dir: Path
+) -> tuple[list[float], float]:
     """SB3 DQN or PPO with ``CnnPolicy`` on the raw percepts, one ``learn`` call whose
     callback evaluates the current policy when it passes each budget."""
     from stable_baselines3 import DQN, PPO
@@ -272,9 +286,7 @@ def run_method(
     writer.close()
     if len(returns) != len(config.budgets):
         raise RuntimeError(f"{method} produced {len(returns)} of {len(config.budgets)} returns")
-    return RunResult(
-        method, seed, list(config.budgets), returns, train, time.perf_counter() - t0
-    )
+    return RunResult(method, seed, list(config.budgets), returns, train, time.perf_counter() - t0)
 
 
 # -- aggregation --------------------------------------------------------------------------
@@ -355,23 +367,32 @@ def aggregate(
     return out
 
 
-def speedups(methods: dict[str, dict]) -> dict[str, float | None]:
-    """Best SB3 interactions-to-threshold divided by RLVC's, per threshold (None when
-    either never reaches it; SB3 never reaching it means the ratio is at least
-    ``max budget / RLVC's``, recorded as ``..._lower_bound``)."""
-    out: dict[str, float | None] = {}
+def speedups(methods: dict[str, dict], budgets: Sequence[int]) -> dict[str, object]:
+    """Best SB3 interactions-to-threshold divided by RLVC's, per threshold.
+
+    ``sb3_over_rlvc_<pct>pct`` is None when either never reaches the threshold; when RLVC
+    does and no SB3 baseline does, ``..._lower_bound`` (max budget / RLVC's) bounds it.
+    ``..._ci`` is the interval from the methods' CI curves: [pessimistic SB3 / optimistic
+    RLVC ... ] ordered low to high (None where a bound is never reached).
+    """
+    out: dict[str, object] = {}
     if "rlvc" not in methods:
         return out
+    sb3 = [methods[m] for m in ("dqn", "ppo") if m in methods]
     for frac in THRESHOLDS:
         key = f"interactions_to_{round(frac * 100)}pct"
-        rlvc = methods["rlvc"][key]
-        sb3 = [methods[m][key] for m in ("dqn", "ppo") if m in methods]
-        reached = [b for b in sb3 if b is not None]
         name = f"sb3_over_rlvc_{round(frac * 100)}pct"
+        rlvc = methods["rlvc"][key]
+        reached = [m[key] for m in sb3 if m[key] is not None]
         out[name] = min(reached) / rlvc if rlvc and reached else None
         if rlvc and sb3 and not reached:
-            budgets = methods["rlvc"]["curve"]["budgets"]
             out[name + "_lower_bound"] = max(budgets) / rlvc
+        rlvc_fast, rlvc_slow = methods["rlvc"][key + "_ci"]
+        sb3_fast = [m[key + "_ci"][0] for m in sb3 if m[key + "_ci"][0] is not None]
+        sb3_slow = [m[key + "_ci"][1] for m in sb3 if m[key + "_ci"][1] is not None]
+        low = min(sb3_fast) / rlvc_slow if sb3_fast and rlvc_slow else None
+        high = min(sb3_slow) / rlvc_fast if sb3_slow and rlvc_fast else None
+        out[name + "_ci"] = [low, high]
     return out
 
 
@@ -414,10 +435,8 @@ def write_csv(path: Path, methods: dict[str, dict], budgets: Sequence[int]) -> N
             c = m["curve"]
             for j, budget in enumerate(budgets):
                 per_seed = c["per_seed"][:, j]
-                writer.writerow(
-                    [name, budget, c["iqm"][j], c["ci_low"][j], c["ci_high"][j], per_seed.mean()]
-                    + list(per_seed)
-                )
+                row = [name, budget, c["iqm"][j], c["ci_low"][j], c["ci_high"][j]]
+                writer.writerow([*row, per_seed.mean(), *per_seed])
 
 
 def plot_curves(path: Path, methods: dict[str, dict], budgets: Sequence[int], oracle: float):
@@ -495,7 +514,7 @@ def compare(
         "oracle_return": oracle_return,
         "budgets": list(config.budgets),
         "methods": methods,
-        "ratios": speedups(methods),
+        "ratios": speedups(methods, config.budgets),
         "runs": [asdict(r) for r in results],
         "seconds": time.perf_counter() - start,
     }
@@ -503,5 +522,10 @@ def compare(
     print(f"Comparison on {config.env_id} -> {out}")
     print(table)
     if summary["ratios"]:
-        print_table({k: _fmt(v) for k, v in summary["ratios"].items()})
+        print_table(
+            {
+                k: _fmt(v) if not isinstance(v, list) else str([_fmt(x) for x in v])
+                for k, v in summary["ratios"].items()
+            }
+        )
     return summary

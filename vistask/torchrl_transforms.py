@@ -1,0 +1,116 @@
+"""torchrl ``Transform``s: image observation -> visual features, image -> visual class.
+
+The torchrl counterparts of ``vistask.wrappers.VisualFeatures`` and ``VisualClasses``, for a
+``torchrl.envs.GymEnv`` whose Box image observation torchrl stores under ``"pixels"``.
+
+Example:
+    >>> from torchrl.envs import GymEnv, TransformedEnv
+    >>> agent = RLVCAgent.load("rlvc.pt")
+    >>> transform = VisualClassTransform(agent.classifier)
+    >>> env = TransformedEnv(GymEnv("vistask/VisualMaze-v0"), transform)
+    >>> env.rollout(10)["visual_class"]        # (10,) int64 class ids
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+import torch
+from torchrl.data import Binary, Categorical, Composite, TensorSpec
+from torchrl.envs.transforms import Transform
+
+from vistask.features import VisualFeatureExtractor
+from vistask.wrappers import Classifier
+
+
+def _images(pixels: torch.Tensor) -> tuple[list[np.ndarray], torch.Size]:
+    """(..., H, W, 3) uint8 tensor -> list of (H, W, 3) arrays and the leading batch shape."""
+    if pixels.ndim < 3 or pixels.shape[-1] != 3 or pixels.dtype != torch.uint8:
+        raise ValueError(
+            f"expected (..., H, W, 3) uint8 images, got {tuple(pixels.shape)} {pixels.dtype}"
+        )
+    batch = pixels.shape[:-3]
+    flat = pixels.reshape(-1, *pixels.shape[-3:]).cpu().numpy()
+    return list(flat), batch
+
+
+class _ImageTransform(Transform):
+    """Maps ``in_key`` images to ``out_key`` after every step and reset; the spec of
+    ``out_key`` is ``self._spec(device)`` (per observation, without batch dims)."""
+
+    def __init__(self, in_key: str, out_key: str) -> None:
+        super().__init__(in_keys=[in_key], out_keys=[out_key])
+
+    def _spec(self, device) -> TensorSpec:
+        raise NotImplementedError
+
+    def _reset(self, tensordict, tensordict_reset):
+        # Transform._reset passes resets through untouched; the first observation needs it too.
+        return self._call(tensordict_reset)
+
+    def transform_observation_spec(self, observation_spec: Composite) -> Composite:
+        image_spec = observation_spec[self.in_keys[0]]
+        if image_spec.shape[-1:] != (3,) or image_spec.dtype != torch.uint8:
+            raise ValueError(
+                f"{type(self).__name__} needs (H, W, 3) uint8 images under "
+                f"{self.in_keys[0]!r}, got {image_spec}"
+            )
+        batch = image_spec.shape[:-3]
+        spec = self._spec(image_spec.device)
+        observation_spec[self.out_keys[0]] = spec.expand(*batch, *spec.shape)
+        return observation_spec
+
+
+class VisualFeatureTransform(_ImageTransform):
+    """Image -> (F,) int8 presence vector of the F visual features (``Binary`` spec).
+
+    Args:
+        extractor: the visual feature extractor (vocabulary).
+        in_key: key of the (..., H, W, 3) uint8 images.
+        out_key: key of the (..., F) int8 presence vectors.
+    """
+
+    def __init__(
+        self, extractor: VisualFeatureExtractor, in_key: str = "pixels", out_key: str = "features"
+    ) -> None:
+        super().__init__(in_key, out_key)
+        self.extractor = extractor
+
+    def _spec(self, device) -> TensorSpec:
+        n = self.extractor.n_features
+        return Binary(n=n, shape=(n,), device=device, dtype=torch.int8)
+
+    def _apply_transform(self, pixels: torch.Tensor) -> torch.Tensor:
+        images, batch = _images(pixels)
+        presence = self.extractor.presence(images).to(torch.int8)
+        return presence.reshape(*batch, -1).to(pixels.device)
+
+
+class VisualClassTransform(_ImageTransform):
+    """Image -> visual class id in ``range(classifier.n_classes)`` (``Categorical`` spec).
+
+    Args:
+        classifier: image -> class with ``n_classes`` (``RLVCAgent.classifier``); its batched
+            ``classify(images)`` is used when present.
+        in_key: key of the (..., H, W, 3) uint8 images.
+        out_key: key of the (...,) int64 class ids.
+    """
+
+    def __init__(
+        self, classifier: Classifier, in_key: str = "pixels", out_key: str = "visual_class"
+    ) -> None:
+        super().__init__(in_key, out_key)
+        self.classifier = classifier
+
+    def _spec(self, device) -> TensorSpec:
+        return Categorical(n=self.classifier.n_classes, shape=(), device=device, dtype=torch.int64)
+
+    def _classes(self, images: Sequence[np.ndarray]) -> torch.Tensor:
+        if hasattr(self.classifier, "classify"):
+            return torch.as_tensor(self.classifier.classify(list(images)), dtype=torch.int64)
+        return torch.tensor([int(self.classifier(image)) for image in images], dtype=torch.int64)
+
+    def _apply_transform(self, pixels: torch.Tensor) -> torch.Tensor:
+        images, batch = _images(pixels)
+        return self._classes(images).reshape(batch).to(pixels.device)
