@@ -375,14 +375,14 @@ class GraspLearner:
         state = torch.load(path, map_location="cpu", weights_only=True)
         ws = state["workspace"]
         learner = cls(
-            _density_from_state(state["hypothesis"]),
+            SE3KDE.from_state_dict(state["hypothesis"]),
             None if ws is None else Workspace(**{k: _untuple(v) for k, v in ws.items()}),
             c_rel=state["c_rel"],
             sigma_t=state["sigma_t"],
             sigma_r=state["sigma_r"],
         )
         learner.trials = Trials(**state["trials"])
-        learner.proposals = [_density_from_state(p) for p in state["proposals"]]
+        learner.proposals = [SE3KDE.from_state_dict(p) for p in state["proposals"]]
         learner.history = [CycleStats(**h) for h in state["history"]]
         if learner.empirical is not None:
             learner.proposal = learner.empirical
@@ -391,16 +391,6 @@ class GraspLearner:
 
 def _untuple(v: Any) -> Any:
     return tuple(v) if isinstance(v, list) else v
-
-
-def _density_from_state(state: dict[str, Any]) -> SE3KDE:
-    return SE3KDE(
-        state["points"],
-        state["weights"],
-        sigma_t=state["sigma_t"],
-        sigma_r=state["sigma_r"],
-        kernel=state["kernel"],
-    )
 
 
 def run_trials(

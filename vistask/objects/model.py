@@ -255,7 +255,7 @@ class ObjectModel:
                 f["parent"],
                 f["appearance"],
                 f["frame"],
-                None if f["potential"] is None else _kde_from_state(f["potential"]),
+                None if f["potential"] is None else SE3KDE.from_state_dict(f["potential"]),
             )
             for f in state["features"]
         ]
@@ -267,19 +267,9 @@ class ObjectModel:
             features,
             Patches(**state["patches"]),
             state["labels"],
-            None if grasp is None else _kde_from_state(grasp),
+            None if grasp is None else SE3KDE.from_state_dict(grasp),
             ModelConfig(**state["config"]),
         )
-
-
-def _kde_from_state(state: dict) -> SE3KDE:
-    return SE3KDE(
-        state["points"],
-        state["weights"],
-        sigma_t=state["sigma_t"],
-        sigma_r=state["sigma_r"],
-        kernel=state["kernel"],
-    )
 
 
 def _kmeans(desc: Tensor, k: int, seed: int) -> tuple[Tensor, Tensor]:

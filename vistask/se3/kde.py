@@ -407,6 +407,11 @@ class KernelDensity:
         state = torch.load(path, map_location="cpu", weights_only=True)
         if state.get("type") != cls.__name__:
             raise ValueError(f"{path} holds a {state.get('type')}, not a {cls.__name__}")
+        return cls.from_state_dict(state, device)
+
+    @classmethod
+    def from_state_dict(cls: type[D], state: dict, device: torch.device | str | None = None) -> D:
+        """Rebuild a density from ``state_dict()``."""
         return cls(
             state["points"],
             state["weights"],
