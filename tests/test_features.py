@@ -50,6 +50,26 @@ def test_the_same_image_always_gives_the_same_features(extractor, percepts):
     assert torch.equal(one, first[:10])
 
 
+class CountingSift(SiftExtractor):
+    """Records the batch sizes it extracts."""
+
+    def batch(self, images):
+        self.calls = [*getattr(self, "calls", []), len(images)]
+        return super().batch(images)
+
+
+def test_repeated_percepts_are_extracted_once_and_give_the_same_features(extractor, percepts):
+    cold = VisualFeatureExtractor(extractor.keypoints, extractor.centroids, cache_size=0)
+    fresh = cold.presence_of(cold.keypoints.batch(percepts[:20]))
+    counting = CountingSift(**extractor.keypoints.config())
+    warm = VisualFeatureExtractor(counting, extractor.centroids)
+    repeated = percepts[:20] + [p.copy() for p in percepts[:5]]  # equal pixels, new arrays
+    assert torch.equal(warm.presence(repeated), torch.cat([fresh, fresh[:5]]))
+    assert torch.equal(warm.presence(percepts[:10]), fresh[:10])
+    assert counting.calls == [20]  # the repeats and the second call came from the cache
+    assert torch.equal(cold.presence(percepts[:20]), fresh)
+
+
 def test_presence_is_a_bool_matrix_over_the_vocabulary(extractor, percepts):
     presence = extractor.presence(percepts)
     assert presence.shape == (len(percepts), 256) and presence.dtype == torch.bool

@@ -1,13 +1,16 @@
 """RLVC's parts on synthetic data: split search, t-test, Q solver, class tree, database."""
 
+import gymnasium as gym
 import numpy as np
 import pytest
 import torch
 
+import vistask  # noqa: F401  (registers the maze)
 from vistask.rlvc import (
     RLVC,
     ClassTree,
     InteractionDatabase,
+    collect,
     estimate_mdp,
     find_splits,
     td_errors,
@@ -133,6 +136,20 @@ def test_empty_database_is_rejected():
         InteractionDatabase(
             torch.zeros(1, 3, dtype=torch.bool), empty, empty, empty.double(), empty, empty.bool()
         )
+
+
+def test_collect_links_interactions_and_stores_a_blocked_view_once():
+    env = gym.make("vistask/VisualMaze-v0")
+    t = collect(env, 400, max_episode_steps=30, seed=3)
+    assert len(t) == 400 and len(t.percepts) == len(t.positions)
+    blocked = t.obs == t.next_obs
+    assert 0 < blocked.sum() < len(t) / 2  # walls block some moves and keep the view
+    np.testing.assert_array_equal(t.positions[t.obs[blocked]], t.positions[t.next_obs[blocked]])
+    # Within an episode x_{t+1} is the next x_t; no two stored views in a row are equal.
+    inside = t.next_obs[:-1] == t.obs[1:]
+    assert inside.mean() > 0.9
+    for i, j in zip(t.obs[1:][~blocked[1:]], t.next_obs[1:][~blocked[1:]], strict=True):
+        assert not np.array_equal(t.percepts[i], t.percepts[j])
 
 
 def synthetic_chain(n_states: int = 6, n: int = 4000, seed: int = 0) -> InteractionDatabase:

@@ -13,6 +13,7 @@ confidence intervals.
 from __future__ import annotations
 
 import csv
+import json
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
@@ -470,9 +471,9 @@ def compare(
     """Run every method with every seed, aggregate and write all outputs.
 
     Writes under ``out`` (default ``runs/compare-<time>/``): ``curves.csv``, ``table.md``,
-    ``curves.png``, ``summary.json`` and ``tensorboard/`` (``<method>-seed<k>`` with
-    ``eval/return`` against interactions for every method, ``seed<k>/<dqn|ppo>-sb3_1`` with
-    SB3's own training logs).
+    ``curves.png``, ``summary.json``, ``runs.jsonl`` (each run as it ends) and ``tensorboard/``
+    (``<method>-seed<k>`` with ``eval/return`` against interactions for every method,
+    ``seed<k>/<dqn|ppo>-sb3_1`` with SB3's own training logs).
 
     Args:
         config: the comparison (default ``CompareConfig()``, the full run).
@@ -496,6 +497,8 @@ def compare(
         for k in range(config.seeds):
             result = run_method(config, method, config.seed0 + k, starts, out / "tensorboard")
             results.append(result)
+            with open(out / "runs.jsonl", "a") as runs:  # kept if a later run fails
+                runs.write(json.dumps(asdict(result)) + "\n")
             if progress:
                 curve = " ".join(f"{r:.1f}" for r in result.returns)
                 print(f"{method} seed {result.seed}: {curve} ({result.seconds:.0f} s)", flush=True)

@@ -84,6 +84,12 @@ def _assign(
     return torch.cat(rows), torch.cat(words)
 
 
+def _digest(image: np.ndarray) -> bytes:
+    image = np.ascontiguousarray(image)
+    shape = repr(image.shape).encode()[:16]
+    return hashlib.blake2b(image.data, digest_size=16, person=shape).digest()
+
+
 @dataclass
 class Occurrences:
     """Visual features found in one image: ``words`` (K,) feature ids, ``xy`` (K, 2) pixels."""
@@ -107,6 +113,10 @@ class VisualFeatureExtractor:
         soft_ratio: a descriptor also shows the prototypes within ``soft_ratio`` times its
             nearest distance (1: nearest only). Small shifts of the window perturb descriptors,
             and soft assignment keeps a feature present where a hard one would flip.
+        cache_size: ``presence`` remembers the features of this many distinct images (0: none).
+            Control loops see the same percept again and again (a blocked move leaves the
+            view unchanged; evaluations replay the same starts), and extraction is the
+            dominant cost.
     """
 
     def __init__(
@@ -115,6 +125,7 @@ class VisualFeatureExtractor:
         centroids: torch.Tensor,
         max_distance: float | None = None,
         soft_ratio: float = 1.0,
+        cache_size: int = 100_000,
     ) -> None:
         if centroids.ndim != 2 or centroids.shape[1] != keypoints.descriptor_size:
             raise ValueError(
@@ -126,6 +137,8 @@ class VisualFeatureExtractor:
         if soft_ratio < 1:
             raise ValueError(f"soft_ratio must be >= 1, got {soft_ratio}")
         self.soft_ratio = float(soft_ratio)
+        self.cache_size = cache_size
+        self._cache: dict[bytes, np.ndarray] = {}  # image digest -> present feature ids
 
     @property
     def n_features(self) -> int:
@@ -213,8 +226,27 @@ class VisualFeatureExtractor:
         return presence
 
     def presence(self, images: Sequence[np.ndarray]) -> torch.Tensor:
-        """(N, F) bool: feature f present in image i. Images are (H, W, 3) uint8."""
-        return self.presence_of(self.keypoints.batch(images))
+        """(N, F) bool: feature f present in image i. Images are (H, W, 3) uint8.
+
+        Each distinct image is extracted once: repeats, within the batch or cached from
+        earlier calls, are looked up by a digest of their pixels.
+        """
+        keys = [_digest(image) for image in images]
+        todo = {key: i for i, key in enumerate(keys) if key not in self._cache}
+        found: dict[bytes, np.ndarray] = {}
+        if todo:
+            fresh = self.presence_of(self.keypoints.batch([images[i] for i in todo.values()]))
+            if len(self._cache) + len(todo) > self.cache_size:
+                self._cache.clear()  # simpler than LRU, and rare: the cache holds 100k views
+            found = {
+                key: row.nonzero().flatten().numpy() for key, row in zip(todo, fresh, strict=True)
+            }
+            if self.cache_size:
+                self._cache.update(found)
+        presence = torch.zeros(len(images), self.n_features, dtype=torch.bool)
+        for i, key in enumerate(keys):
+            presence[i, torch.from_numpy(found[key] if key in found else self._cache[key])] = True
+        return presence
 
     def __call__(self, image: np.ndarray) -> np.ndarray:
         """(F,) int8 presence vector of one image (the ``MultiBinary`` observation)."""
