@@ -177,25 +177,6 @@ class InteractionDatabase:
             positions=transitions.positions,
         )
 
-    @classmethod
-    def concat(cls, databases: list[InteractionDatabase]) -> InteractionDatabase:
-        """One database holding the interactions of all ``databases`` (same vocabulary)."""
-        if len({db.n_features for db in databases}) != 1:
-            raise ValueError("databases to join must share one vocabulary")
-        offsets = np.cumsum([0] + [len(db.presence) for db in databases[:-1]])
-        positions = [db.positions for db in databases]
-        return cls(
-            presence=torch.cat([db.presence for db in databases]),
-            obs=torch.cat([db.obs + int(o) for db, o in zip(databases, offsets, strict=True)]),
-            actions=torch.cat([db.actions for db in databases]),
-            rewards=torch.cat([db.rewards for db in databases]),
-            next_obs=torch.cat(
-                [db.next_obs + int(o) for db, o in zip(databases, offsets, strict=True)]
-            ),
-            terminal=torch.cat([db.terminal for db in databases]),
-            positions=None if any(p is None for p in positions) else np.concatenate(positions),
-        )
-
     def interaction_features(self) -> tuple[torch.Tensor, torch.Tensor]:
         """Sparse (interaction, feature) pairs of x_t: rows (nnz,), features (nnz,), cached."""
         if self._coo is None:
