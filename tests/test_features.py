@@ -1,5 +1,7 @@
 """Visual features: SIFT keypoints, the k-means vocabulary, presence, determinism, round trip."""
 
+import pickle
+
 import numpy as np
 import pytest
 import torch
@@ -68,6 +70,8 @@ def test_repeated_percepts_are_extracted_once_and_give_the_same_features(extract
     assert torch.equal(warm.presence(percepts[:10]), fresh[:10])
     assert counting.calls == [20]  # the repeats and the second call came from the cache
     assert torch.equal(cold.presence(percepts[:20]), fresh)
+    copy = pickle.loads(pickle.dumps(warm))  # e.g. into a subprocess vector env
+    assert copy._cache == {} and torch.equal(copy.presence(percepts[:3]), fresh[:3])
 
 
 def test_presence_is_a_bool_matrix_over_the_vocabulary(extractor, percepts):

@@ -140,6 +140,10 @@ class VisualFeatureExtractor:
         self.cache_size = cache_size
         self._cache: dict[bytes, np.ndarray] = {}  # image digest -> present feature ids
 
+    def __getstate__(self) -> dict:
+        # Pickled copies (subprocess vector envs) start with an empty cache.
+        return {**self.__dict__, "_cache": {}}
+
     @property
     def n_features(self) -> int:
         return len(self.centroids)
