@@ -85,9 +85,9 @@ def _assign(
 
 
 def _digest(image: np.ndarray) -> bytes:
-    image = np.ascontiguousarray(image)
-    shape = repr(image.shape).encode()[:16]
-    return hashlib.blake2b(image.data, digest_size=16, person=shape).digest()
+    digest = hashlib.blake2b(repr(image.shape).encode(), digest_size=16)
+    digest.update(np.ascontiguousarray(image).data)
+    return digest.digest()
 
 
 @dataclass
@@ -222,10 +222,13 @@ class VisualFeatureExtractor:
 
     def presence_of(self, detected: Sequence[Keypoints]) -> torch.Tensor:
         """(N, F) bool presence matrix of already extracted keypoints."""
-        pairs = self.words(detected)
-        rows = np.repeat(np.arange(len(pairs)), [len(w) for _, w in pairs])
-        cols = np.concatenate([w for _, w in pairs])
-        presence = torch.zeros(len(pairs), self.n_features, dtype=torch.bool)
+        return self._matrix([words for _, words in self.words(detected)])
+
+    def _matrix(self, features: Sequence[np.ndarray]) -> torch.Tensor:
+        """(N, F) bool matrix with row i true at the feature ids ``features[i]``."""
+        rows = np.repeat(np.arange(len(features)), [len(f) for f in features])
+        cols = np.concatenate([np.zeros(0, np.int64), *features])
+        presence = torch.zeros(len(features), self.n_features, dtype=torch.bool)
         presence[torch.from_numpy(rows), torch.from_numpy(cols)] = True
         return presence
 
@@ -239,18 +242,13 @@ class VisualFeatureExtractor:
         todo = {key: i for i, key in enumerate(keys) if key not in self._cache}
         found: dict[bytes, np.ndarray] = {}
         if todo:
-            fresh = self.presence_of(self.keypoints.batch([images[i] for i in todo.values()]))
-            if len(self._cache) + len(todo) > self.cache_size:
+            pairs = self.words(self.keypoints.batch([images[i] for i in todo.values()]))
+            found = {key: words for key, (_, words) in zip(todo, pairs, strict=True)}
+            if len(self._cache) + len(found) > self.cache_size:
                 self._cache.clear()  # simpler than LRU, and rare: the cache holds 100k views
-            found = {
-                key: row.nonzero().flatten().numpy() for key, row in zip(todo, fresh, strict=True)
-            }
             if self.cache_size:
                 self._cache.update(found)
-        presence = torch.zeros(len(images), self.n_features, dtype=torch.bool)
-        for i, key in enumerate(keys):
-            presence[i, torch.from_numpy(found[key] if key in found else self._cache[key])] = True
-        return presence
+        return self._matrix([found[key] if key in found else self._cache[key] for key in keys])
 
     def __call__(self, image: np.ndarray) -> np.ndarray:
         """(F,) int8 presence vector of one image (the ``MultiBinary`` observation)."""
