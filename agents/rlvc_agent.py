@@ -56,7 +56,7 @@ class RLVCAgent:
     def __init__(
         self,
         env: gym.Env | None,
-        n_words: int = 2048,
+        n_words: int = 8192,
         alpha: float = 0.05,
         min_count: int = 10,
         bonferroni: bool = False,

@@ -103,6 +103,25 @@ def test_soft_assignment_adds_features_and_changes_the_fingerprint(extractor, pe
     assert soft.fingerprint != extractor.fingerprint
 
 
+def test_words_are_the_nearest_prototypes_within_max_distance(extractor, percepts):
+    detected = extractor.keypoints.batch(percepts[:20])
+    x = torch.from_numpy(np.concatenate([k.descriptors for k in detected]))
+    distance, nearest = torch.cdist(x, extractor.centroids).min(1)
+    words = np.concatenate([w for _, w in extractor.words(detected)])
+    assert np.array_equal(words, nearest.numpy())
+    # Many prototypes make many row blocks; a threshold (between two descriptors' distances,
+    # clear of rounding) drops the far descriptors.
+    middle = distance.sort().values[len(distance) // 2 : len(distance) // 2 + 2]
+    threshold = float(middle.mean())
+    wide = VisualFeatureExtractor(
+        extractor.keypoints, extractor.centroids.repeat(40, 1), max_distance=threshold
+    )
+    near = distance <= threshold
+    kept = np.concatenate([w for _, w in wide.words(detected)])
+    assert len(kept) == int(near.sum()) < len(x)
+    assert np.array_equal(kept % len(extractor.centroids), nearest[near].numpy())
+
+
 def test_kmeans_converges_to_a_fixed_point_with_lower_error():
     rng = np.random.default_rng(0)
     centres = rng.normal(0, 10, (8, 8))

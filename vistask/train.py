@@ -26,7 +26,7 @@ def train_rlvc(
     env_id: str = "vistask/VisualMaze-v0",
     env_kwargs: dict | None = None,
     interactions: int = 10_000,
-    n_words: int = 2048,
+    n_words: int = 8192,
     alpha: float = 0.05,
     min_count: int = 10,
     max_stages: int = 300,

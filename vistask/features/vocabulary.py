@@ -18,11 +18,18 @@ import torch
 from vistask.features.keypoints import Keypoints, SiftExtractor
 
 
-def _nearest(x: torch.Tensor, centroids: torch.Tensor, chunk: int = 8192):
+def _chunk_rows(n_centroids: int) -> int:
+    """Rows per block of a (rows, F) distance matrix: about 4M entries, small enough to stay
+    in cache-friendly memory (an 8192 x 8192 block made matching 1.6x slower)."""
+    return max(64, (1 << 22) // max(n_centroids, 1))
+
+
+def _nearest(x: torch.Tensor, centroids: torch.Tensor):
     """Nearest centroid of each row of x (M, D) -> (indices (M,), squared distances (M,))."""
     c_sq = (centroids * centroids).sum(1)
     index = torch.empty(len(x), dtype=torch.long, device=x.device)
     dist = torch.empty(len(x), dtype=x.dtype, device=x.device)
+    chunk = _chunk_rows(len(centroids))
     for s in range(0, len(x), chunk):
         block = x[s : s + chunk]
         # ||x - c||^2 = ||x||^2 - 2 x.c + ||c||^2; ||x||^2 does not change the argmin.
@@ -60,15 +67,21 @@ def _assign(
     soft_ratio: float = 1.0,
     max_distance: float | None = None,
     neighbours: int = 4,
-    chunk: int = 8192,
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """Words of each descriptor: the nearest prototype, plus (soft assignment) up to
     ``neighbours`` prototypes within ``soft_ratio`` times the nearest distance.
 
     Returns (descriptor index (P,), word (P,)) pairs, ordered by descriptor.
     """
+    if soft_ratio == 1:
+        index, dist = _nearest(x, centroids)
+        if max_distance is None:
+            return torch.arange(len(x)), index
+        keep = dist <= max_distance**2
+        return torch.nonzero(keep).flatten(), index[keep]
     c_sq = (centroids * centroids).sum(1)
-    k = min(neighbours if soft_ratio > 1 else 1, len(centroids))
+    k = min(neighbours, len(centroids))
+    chunk = _chunk_rows(len(centroids))
     rows, words = [], []
     for s in range(0, len(x), chunk):
         block = x[s : s + chunk]
