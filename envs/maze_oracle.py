@@ -82,7 +82,7 @@ class MazeOracle:
             new, exited = geometry.move(points, np.full(len(points), a), np.tile(noise, (cells, 1)))
             exited = exited.reshape(cells, k)
             rewards[a] = geometry.reward * exited.mean(axis=1)
-            target = _cell_index(geometry, grid, new).reshape(cells, k)
+            target = grid_cells(new, geometry.size, grid).reshape(cells, k)
             rows = np.repeat(np.arange(cells), k)[~exited.ravel()]
             transitions.append(
                 sp.csr_matrix(
@@ -103,7 +103,7 @@ class MazeOracle:
 
     def cell(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(row, column) grid indices of (N, 2) positions."""
-        index = _cell_index(self.geometry, self.grid, np.atleast_2d(points))
+        index = grid_cells(points, self.geometry.size, self.grid)
         return np.divmod(index, self.grid)
 
     def value(self, points: np.ndarray) -> np.ndarray:
@@ -119,8 +119,11 @@ class MazeOracle:
         return lambda percepts, positions: self.act(positions)
 
 
-def _cell_index(geometry: MazeGeometry, grid: int, points: np.ndarray) -> np.ndarray:
-    ij = np.clip((points / geometry.size * grid).astype(int), 0, grid - 1)
+def grid_cells(positions: np.ndarray, size: float, grid: int) -> np.ndarray:
+    """(N, 2) positions in [0, size]^2 -> (N,) cell ids ``row * grid + column`` of a
+    ``grid x grid`` partition (row from y, column from x)."""
+    positions = np.asarray(positions, dtype=float).reshape(-1, 2)
+    ij = np.clip((positions / size * grid).astype(int), 0, grid - 1)
     return ij[:, 1] * grid + ij[:, 0]
 
 

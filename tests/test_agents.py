@@ -10,7 +10,8 @@ from vistask.agents import RLVCAgent, TabularQAgent
 from vistask.envs import MazeOracle, VisualMazeEnv, evaluate_policy, start_positions
 from vistask.features import VisualFeatureExtractor
 from vistask.rlvc import VisualClassifier
-from vistask.train import agent_policy
+from vistask.rlvc import collect
+from vistask.train import agent_policy, true_grid_policy
 from vistask.wrappers import VisualClasses, VisualFeatures
 
 SMALL = dict(
@@ -37,6 +38,19 @@ def test_rlvc_reaches_near_oracle_return_on_a_small_maze(small_agent):
     random = evaluate_policy(maze, lambda obs, pos: rng.integers(4, size=len(obs)), starts).mean
     assert rlvc >= 0.85 * oracle > random
     assert small_agent.rlvc.n_classes > 4
+
+
+def test_true_grid_aggregation_of_random_interactions_is_near_the_oracle():
+    maze = VisualMazeEnv(**SMALL)
+    starts = start_positions(maze.geometry, 60)
+    oracle = evaluate_policy(maze, MazeOracle.solve(maze.geometry).as_policy(), starts).mean
+    database = collect(maze, 3000, seed=0)
+    ceiling = evaluate_policy(maze, true_grid_policy(maze.geometry, database, grid=8), starts)
+    coarse = evaluate_policy(maze, true_grid_policy(maze.geometry, database, grid=1), starts)
+    assert ceiling.mean >= 0.9 * oracle > coarse.mean
+    database.positions = None
+    with pytest.raises(ValueError, match="true positions"):
+        true_grid_policy(maze.geometry, database)
 
 
 def test_visual_features_wrapper_passes_check_env(small_agent):

@@ -26,7 +26,7 @@ from scipy import stats
 
 from vistask.agents import RLVCAgent, TabularQAgent
 from vistask.envs import MazeOracle, VisualMazeEnv, evaluate_policy, start_positions
-from vistask.envs.maze_oracle import Policy
+from vistask.envs.maze_oracle import Policy, grid_cells
 from vistask.logging import print_table, run_dir, tensorboard, write_summary
 
 METHODS = ("rlvc", "dqn", "ppo", "tabular", "random")
@@ -36,14 +36,6 @@ THRESHOLDS = (0.9, 0.75)  # fractions of the oracle's return; 0.9 is the issue's
 
 
 # -- privileged-state baseline ------------------------------------------------------------
-def grid_cells(positions: np.ndarray, size: float, grid: int) -> np.ndarray:
-    """(N, 2) positions in [0, size]^2 -> (N,) cell ids ``row * grid + column`` of a
-    ``grid x grid`` partition (row from y, column from x)."""
-    positions = np.asarray(positions, dtype=float).reshape(-1, 2)
-    ij = np.clip((positions / size * grid).astype(int), 0, grid - 1)
-    return ij[:, 1] * grid + ij[:, 0]
-
-
 class GridCells(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
     """Maze image observation -> ``Discrete(grid**2)`` cell of the *true* position.
 

@@ -8,11 +8,15 @@ from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
+import torch
 
 from vistask.agents import RLVCAgent
-from vistask.envs import MazeOracle, VisualMazeEnv, evaluate_policy, start_positions
+from vistask.envs import MazeGeometry, MazeOracle, VisualMazeEnv, evaluate_policy, start_positions
+from vistask.envs.maze_oracle import Policy, grid_cells
 from vistask.envs.maze_plots import percept_grid, plot_policy, plot_values
 from vistask.logging import print_table, run_dir, tensorboard, write_summary
+from vistask.rlvc import Transitions, collect
+from vistask.rlvc.solver import estimate_mdp, value_iteration
 
 PAPER = {"stages": 84, "classes": 205, "selected_features": 200, "vocabulary_size": 2298}
 
@@ -20,6 +24,26 @@ PAPER = {"stages": 84, "classes": 205, "selected_features": 200, "vocabulary_siz
 def agent_policy(agent: RLVCAgent):
     """The agent as a batched maze ``Policy`` (it sees percepts only, never positions)."""
     return lambda percepts, positions: agent.predict(percepts)[0]
+
+
+def true_grid_policy(geometry: MazeGeometry, transitions: Transitions, grid: int = 20) -> Policy:
+    """Greedy policy of value iteration on ``transitions`` with the true position cut into
+    ``grid`` x ``grid`` cells: what a perfect state aggregation of the same interactions scores,
+    a ceiling for the learned visual classes. It reads the privileged positions."""
+    if transitions.positions is None:
+        raise ValueError("the transitions hold no true positions (info['position'])")
+    cells = torch.as_tensor(grid_cells(transitions.positions, geometry.size, grid))
+    mdp = estimate_mdp(
+        cells[transitions.obs],
+        torch.as_tensor(transitions.actions),
+        torch.as_tensor(transitions.rewards),
+        cells[transitions.next_obs],
+        torch.as_tensor(transitions.terminal),
+        grid * grid,
+        4,
+    )
+    greedy = value_iteration(mdp, geometry.gamma).argmax(1).numpy()
+    return lambda percepts, positions: greedy[grid_cells(positions, geometry.size, grid)]
 
 
 def train_rlvc(
@@ -84,6 +108,9 @@ def train_rlvc(
     )
     learned = time.perf_counter()
     rlvc_return = agent.rlvc.history[-1].greedy_return
+    # The agent's own database again (same seed), aggregated on true positions instead.
+    database = collect(env, interactions, max_episode_steps=agent.max_episode_steps, seed=seed)
+    grid_return = evaluate_policy(maze, true_grid_policy(maze.geometry, database), starts).mean
     writer.close()
 
     agent.save(out / "rlvc_agent.pt")
@@ -108,6 +135,7 @@ def train_rlvc(
         "return_ratio": rlvc_return / oracle_return,
         "rlvc_return": rlvc_return,
         "oracle_return": oracle_return,
+        "true_grid_return_ratio": grid_return / oracle_return,
         "stages": len(rlvc.history),
         "classes": rlvc.n_classes,
         "selected_features": len(rlvc.tree.selected_features),
@@ -134,6 +162,7 @@ def train_rlvc(
             "return ratio (RLVC / oracle)": summary["return_ratio"],
             "RLVC mean discounted return": rlvc_return,
             "oracle mean discounted return": oracle_return,
+            "same data on a true 20x20 grid / oracle": summary["true_grid_return_ratio"],
             "stages (paper 84)": summary["stages"],
             "visual classes (paper 205)": summary["classes"],
             "selected features (paper 200)": summary["selected_features"],
