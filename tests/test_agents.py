@@ -9,8 +9,7 @@ from gymnasium.utils.env_checker import check_env
 from vistask.agents import RLVCAgent, TabularQAgent
 from vistask.envs import MazeOracle, VisualMazeEnv, evaluate_policy, start_positions
 from vistask.features import VisualFeatureExtractor
-from vistask.rlvc import VisualClassifier
-from vistask.rlvc import collect
+from vistask.rlvc import VisualClassifier, collect
 from vistask.train import agent_policy, true_grid_policy
 from vistask.wrappers import VisualClasses, VisualFeatures
 

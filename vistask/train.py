@@ -11,7 +11,14 @@ import numpy as np
 import torch
 
 from vistask.agents import RLVCAgent
-from vistask.envs import MazeGeometry, MazeOracle, VisualMazeEnv, evaluate_policy, start_positions
+from vistask.envs import (
+    ACTION_NAMES,
+    MazeGeometry,
+    MazeOracle,
+    VisualMazeEnv,
+    evaluate_policy,
+    start_positions,
+)
 from vistask.envs.maze_oracle import Policy, grid_cells
 from vistask.envs.maze_plots import percept_grid, plot_policy, plot_values
 from vistask.logging import print_table, run_dir, tensorboard, write_summary
@@ -40,7 +47,7 @@ def true_grid_policy(geometry: MazeGeometry, transitions: Transitions, grid: int
         cells[transitions.next_obs],
         torch.as_tensor(transitions.terminal),
         grid * grid,
-        4,
+        len(ACTION_NAMES),
     )
     greedy = value_iteration(mdp, geometry.gamma).argmax(1).numpy()
     return lambda percepts, positions: greedy[grid_cells(positions, geometry.size, grid)]
