@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import gymnasium as gym
@@ -24,11 +24,13 @@ from vistask.rlvc import (
 class RLVCAgent:
     """Collects interactions, learns a feature vocabulary and visual classes, acts greedily.
 
-    ``learn`` runs, top to bottom: collect a database with the exploration policy, extract
-    keypoints of every percept once, fit the vocabulary (first database only), build the
-    interaction database, run RLVC stages; with ``database_size`` it splits the budget into
-    databases of that size, each collected epsilon-greedily on the current classes (the first
-    at random) and used for ``refresh_every`` stages.
+    ``learn`` runs, top to bottom: collect a database, extract keypoints of every percept once,
+    fit the vocabulary (first database only), build the interaction database, run RLVC stages.
+    ``databases`` splits the budget into successive databases: the first is collected with
+    uniformly random actions, each later one epsilon-greedily on the current classes. With
+    ``keep_databases`` the stages run on the union of all databases so far (each round until
+    nothing splits); without, each database replaces the previous one for ``refresh_every``
+    stages.
 
     Example:
         >>> env = gym.make("vistask/VisualMaze-v0")
@@ -44,9 +46,13 @@ class RLVCAgent:
         bonferroni: correct alpha for the number of candidate features (see ``find_splits``).
         max_stages: stage cap.
         max_episode_steps: exploration episodes are cut after this many steps.
-        database_size: interactions per database (None: one database of the whole budget).
-        refresh_every: stages run on each database when ``database_size`` is set.
-        epsilon: exploration rate when collecting on the current classes (refreshed databases).
+        databases: fractions of the budget collected in successive databases (sum 1).
+        keep_databases: run the stages on the union of the databases so far, not the latest.
+        refresh_every: stages run on each database but the last, without ``keep_databases``.
+        epsilon: exploration rate when collecting on the current classes.
+        max_blocked: an epsilon-greedy episode is cut after this many blocked moves in a row.
+        n_envs: epsilon-greedy episodes run side by side on copies of ``env``, so that the
+            policy extracts features of ``n_envs`` views at once.
         gamma: discount (default ``env.unwrapped.gamma``, else 0.99).
         keypoints: descriptor extractor (default ``SiftExtractor()``).
         soft_ratio: soft vocabulary assignment (see ``VisualFeatureExtractor``).
@@ -62,9 +68,12 @@ class RLVCAgent:
         bonferroni: bool = False,
         max_stages: int = 300,
         max_episode_steps: int = 50,
-        database_size: int | None = None,
+        databases: Sequence[float] = (1.0,),
+        keep_databases: bool = True,
         refresh_every: int = 20,
-        epsilon: float = 0.2,
+        epsilon: float = 0.1,
+        max_blocked: int | None = 2,
+        n_envs: int = 16,
         gamma: float | None = None,
         keypoints: SiftExtractor | None = None,
         soft_ratio: float = 1.0,
@@ -81,8 +90,12 @@ class RLVCAgent:
             bonferroni,
         )
         self.max_stages, self.max_episode_steps = max_stages, max_episode_steps
-        self.database_size, self.refresh_every = database_size, refresh_every
-        self.epsilon, self.seed = epsilon, seed
+        if not databases or min(databases) <= 0 or abs(sum(databases) - 1) > 1e-6:
+            raise ValueError(f"databases must be positive fractions summing to 1, got {databases}")
+        self.databases, self.keep_databases = tuple(databases), keep_databases
+        self.refresh_every, self.epsilon, self.max_blocked = refresh_every, epsilon, max_blocked
+        self.n_envs = n_envs
+        self.seed = seed
         self.gamma = 0.99 if gamma is None else float(gamma)
         self.keypoints = keypoints or SiftExtractor()
         self.soft_ratio = soft_ratio
@@ -103,8 +116,7 @@ class RLVCAgent:
         """Learn visual classes from ``total_timesteps`` environment interactions.
 
         Args:
-            total_timesteps: interactions in all (one database, or split evenly over the
-                refreshed databases).
+            total_timesteps: interactions in all, split over ``databases``.
             evaluate: optional ``evaluate(agent) -> return`` of the greedy policy, logged every
                 ``eval_every`` stages.
             progress_bar: show progress bars.
@@ -114,18 +126,29 @@ class RLVCAgent:
             raise ValueError("this agent has no env: pass one to RLVCAgent.load(path, env)")
         if total_timesteps < 1:
             raise ValueError(f"total_timesteps must be >= 1, got {total_timesteps}")
-        per_round = self.database_size or total_timesteps
-        rounds = max(1, total_timesteps // per_round)
-        for k in range(rounds):
+        sizes = [round(f * total_timesteps) for f in self.databases]
+        sizes[0] += total_timesteps - sum(sizes)
+        if min(sizes) < 1:
+            raise ValueError(f"{total_timesteps} interactions cannot fill {len(sizes)} databases")
+        db, seed = None, self.seed
+        for k, size in enumerate(sizes):
             t0 = time.perf_counter()
-            policy = None if self.rlvc is None else self._exploration_policy()
+            exploring = self.rlvc is not None
             transitions = collect(
-                self.env, per_round, policy, self.max_episode_steps, seed=self.seed + k
+                self.env,
+                size,
+                self._exploration_policy() if exploring else None,
+                self.max_episode_steps,
+                seed=seed,
+                max_blocked=self.max_blocked if exploring else None,
+                n_envs=self.n_envs if exploring else 1,
             )
+            seed += self.n_envs if exploring else 1  # env copy i resets with seed + i
             t1 = time.perf_counter()
-            detected = self.keypoints.batch(transitions.percepts)
-            t2 = time.perf_counter()
+            detected, fitting = None, 0.0  # later databases: the cache holds what the policy saw
             if self.extractor is None:
+                detected = self.keypoints.batch(transitions.percepts)
+                t2 = time.perf_counter()
                 self.extractor = VisualFeatureExtractor.fit(
                     detected=detected,
                     n_words=self.n_words,
@@ -143,16 +166,18 @@ class RLVCAgent:
                     self.min_count,
                     self.bonferroni,
                 )
-            t3 = time.perf_counter()
-            db = InteractionDatabase.build(transitions, self.extractor, detected)
-            t4 = time.perf_counter()
+                fitting = time.perf_counter() - t2
+            latest = InteractionDatabase.build(transitions, self.extractor, detected)
+            keep = self.keep_databases and db is not None
+            db = InteractionDatabase.concat(db, latest) if keep else latest
             self.timing["collect"] += t1 - t0
-            self.timing["extract"] += t2 - t1 + t4 - t3
-            self.timing["vocabulary"] += t3 - t2
+            self.timing["extract"] += time.perf_counter() - t1 - fitting
+            self.timing["vocabulary"] += fitting
             self.num_timesteps += len(transitions)
-            stages = self.max_stages if rounds == 1 else self.refresh_every
-            if k == rounds - 1:  # the last database runs until nothing splits
-                stages = self.max_stages - len(self.rlvc.history)
+            stages = self.max_stages - len(self.rlvc.history)
+            last = k == len(sizes) - 1
+            if not (last or self.keep_databases):
+                stages = min(stages, self.refresh_every)
             if stages <= 0:
                 break
             history_before = len(self.rlvc.history)
@@ -165,15 +190,16 @@ class RLVCAgent:
                 on_stage=on_stage,
             )
             splits = sum(r.splits for r in self.rlvc.history[history_before:])
-            if rounds > 1 and splits == 0:
+            # A fresh database that splits nothing means the classes have converged.
+            if not self.keep_databases and k > 0 and splits == 0:
                 break
         return self
 
     def _exploration_policy(self):
-        def policy(obs: np.ndarray, rng: np.random.Generator) -> int:
-            if rng.random() < self.epsilon:
-                return int(rng.integers(self.rlvc.n_actions))
-            return int(self.predict(obs)[0])
+        def policy(observations: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+            greedy = self.predict(observations)[0]
+            explore = rng.random(len(greedy)) < self.epsilon
+            return np.where(explore, rng.integers(self.rlvc.n_actions, size=len(greedy)), greedy)
 
         return policy
 
@@ -212,9 +238,12 @@ class RLVCAgent:
                     "bonferroni": self.bonferroni,
                     "max_stages": self.max_stages,
                     "max_episode_steps": self.max_episode_steps,
-                    "database_size": self.database_size,
+                    "databases": list(self.databases),
+                    "keep_databases": self.keep_databases,
                     "refresh_every": self.refresh_every,
                     "epsilon": self.epsilon,
+                    "max_blocked": self.max_blocked,
+                    "n_envs": self.n_envs,
                     "gamma": self.gamma,
                     "soft_ratio": self.soft_ratio,
                     "seed": self.seed,
@@ -230,7 +259,9 @@ class RLVCAgent:
     def load(cls, path: str | Path, env: gym.Env | None = None) -> RLVCAgent:
         state = torch.load(path, weights_only=True)
         classifier = VisualClassifier.from_state_dict(state["classifier"])
-        agent = cls(env, keypoints=classifier.extractor.keypoints, **state["config"])
+        config = dict(state["config"])
+        config.pop("database_size", None)  # older files; it only shaped how they learned
+        agent = cls(env, keypoints=classifier.extractor.keypoints, **config)
         agent.extractor = classifier.extractor
         agent.rlvc = RLVC.from_state_dict(state["rlvc"])
         if agent.rlvc.n_features != agent.extractor.n_features:

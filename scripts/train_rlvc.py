@@ -2,6 +2,7 @@
 
 python scripts/train_rlvc.py                     # default VisualMaze-v0, 10,000 interactions
 python scripts/train_rlvc.py --interactions 5000 --env-kwargs '{"step": 0.08}'
+python scripts/train_rlvc.py --databases 0.5,0.25,0.25   # later databases on the classes
 """
 
 import argparse
@@ -21,6 +22,13 @@ def main() -> None:
     parser.add_argument("--alpha", type=float, default=0.05, help="t-test significance level")
     parser.add_argument("--min-count", type=int, default=10)
     parser.add_argument("--max-stages", type=int, default=300)
+    parser.add_argument(
+        "--databases",
+        type=lambda text: tuple(float(f) for f in text.split(",")),
+        default=(1.0,),
+        help="budget fractions of successive databases; the first is random, later ones are "
+        "collected epsilon-greedily on the current classes and added to the earlier ones",
+    )
     parser.add_argument("--eval-starts", type=int, default=100)
     parser.add_argument("--eval-every", type=int, default=25)
     parser.add_argument("--seed", type=int, default=0)
@@ -37,6 +45,7 @@ def main() -> None:
         args.alpha,
         args.min_count,
         args.max_stages,
+        args.databases,
         args.eval_starts,
         args.eval_every,
         args.seed,

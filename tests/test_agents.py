@@ -100,6 +100,13 @@ def test_agent_save_load_round_trip_gives_identical_classes(small_agent, tmp_pat
     assert np.array_equal(
         loaded.predict(np.stack(images))[0], small_agent.predict(np.stack(images))[0]
     )
+    # Files saved before ``databases`` replaced ``database_size`` still load.
+    state = torch.load(tmp_path / "agent.pt", weights_only=True)
+    state["config"]["database_size"] = None
+    del state["config"]["databases"], state["config"]["keep_databases"]
+    del state["config"]["max_blocked"], state["config"]["n_envs"]
+    torch.save(state, tmp_path / "old.pt")
+    assert RLVCAgent.load(tmp_path / "old.pt").classifier.n_classes == loaded.classifier.n_classes
 
 
 def test_classifier_load_refuses_a_mismatched_vocabulary(small_agent, tmp_path):
@@ -138,11 +145,22 @@ def test_tabular_q_learning_solves_a_deterministic_gridworld(tmp_path):
         TabularQAgent(gym.make("vistask/VisualMaze-v0"))
 
 
-def test_refreshed_databases_are_collected_on_the_current_classes():
-    agent = RLVCAgent(
-        VisualMazeEnv(**SMALL), n_words=128, database_size=1500, refresh_every=3, epsilon=0.5
+def test_later_databases_are_collected_on_the_current_classes_and_kept_or_replaced():
+    kept = RLVCAgent(VisualMazeEnv(**SMALL), n_words=128, databases=(0.6, 0.4), seed=0)
+    kept.learn(2500, progress_bar=False)
+    refreshed = RLVCAgent(
+        VisualMazeEnv(**SMALL),
+        n_words=128,
+        databases=(0.5, 0.5),
+        keep_databases=False,
+        refresh_every=3,
+        seed=0,
     )
-    agent.learn(3000, progress_bar=False)
-    assert agent.num_timesteps == 3000
-    assert agent.rlvc.n_classes > 1
-    assert len(agent.rlvc.history) >= 4  # three stages on the first database, more on the second
+    refreshed.learn(2500, progress_bar=False)
+    assert kept.num_timesteps == refreshed.num_timesteps == 2500
+    assert len(refreshed.rlvc.history) >= 4  # three stages on the first database, more later
+    assert kept.rlvc.n_classes > 1 and refreshed.rlvc.n_classes > 1
+    with pytest.raises(ValueError, match="summing to 1"):
+        RLVCAgent(VisualMazeEnv(**SMALL), databases=(0.5, 0.2))
+    with pytest.raises(ValueError, match="cannot fill"):
+        RLVCAgent(VisualMazeEnv(**SMALL), databases=(0.999, 0.001)).learn(100)

@@ -152,6 +152,54 @@ def test_collect_links_interactions_and_stores_a_blocked_view_once():
         assert not np.array_equal(t.percepts[i], t.percepts[j])
 
 
+def test_collect_cuts_episodes_stuck_against_a_wall():
+    env = gym.make("vistask/VisualMaze-v0")
+    push_left = lambda views, rng: np.full(len(views), 3)  # noqa: E731 - walls stop it
+    t = collect(env, 300, push_left, max_episode_steps=50, seed=0, max_blocked=2)
+    blocked = t.obs == t.next_obs
+    new_episode = np.r_[True, t.next_obs[:-1] != t.obs[1:]]
+    run, longest = 0, 0
+    for is_blocked, starts in zip(blocked, new_episode, strict=True):
+        run = (0 if starts else run) + 1 if is_blocked else 0
+        longest = max(longest, run)
+    assert longest == 2  # an episode never makes a third blocked move in a row
+    uncut = collect(env, 300, push_left, max_episode_steps=50, seed=0)
+    assert (uncut.obs == uncut.next_obs).mean() > 0.8 > 0.6 > blocked.mean()
+
+
+def test_side_by_side_episodes_are_seeded_and_stay_linked():
+    env = gym.make("vistask/VisualMaze-v0")
+    t = collect(env, 600, max_episode_steps=30, seed=5, n_envs=4)
+    assert len(t) == 600
+    starts = [gym.make("vistask/VisualMaze-v0").reset(seed=5 + i)[1]["position"] for i in range(4)]
+    np.testing.assert_array_equal(t.positions[:4], np.stack(starts))
+    moved = np.linalg.norm(t.positions[t.next_obs] - t.positions[t.obs], axis=1)
+    assert moved.max() < 0.25  # every x_{t+1} is one noisy step of 0.1 from its own x_t
+    # Each episode continues from its own last view: all but the episodes' ends recur as x_t.
+    ends = t.terminal | ~np.isin(t.next_obs, t.obs)
+    assert ends.sum() <= 600 // 30 + 4 + t.terminal.sum()
+
+
+def test_concatenated_databases_keep_each_interaction_linked_to_its_percepts():
+    first, second = synthetic_chain(n=300, seed=1), synthetic_chain(n=200, seed=2)
+    joined = InteractionDatabase.concat(first, second)
+    assert len(joined) == 500 and len(joined.presence) == 1000
+    for part, rows in ((first, slice(0, 300)), (second, slice(300, 500))):
+        assert torch.equal(joined.presence[joined.obs[rows]], part.presence[part.obs])
+        assert torch.equal(joined.presence[joined.next_obs[rows]], part.presence[part.next_obs])
+        assert torch.equal(joined.actions[rows], part.actions)
+    narrower = InteractionDatabase(
+        first.presence[:, :5],
+        first.obs,
+        first.actions,
+        first.rewards,
+        first.next_obs,
+        first.terminal,
+    )
+    with pytest.raises(ValueError, match="features"):
+        InteractionDatabase.concat(first, narrower)
+
+
 def synthetic_chain(n_states: int = 6, n: int = 4000, seed: int = 0) -> InteractionDatabase:
     """A noisy chain whose state is shown by one of n_states features: RLVC must split
     the single initial class into the chain's states to act well."""

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import time
+from collections.abc import Sequence
 from dataclasses import asdict
 from pathlib import Path
 
@@ -61,6 +62,7 @@ def train_rlvc(
     alpha: float = 0.05,
     min_count: int = 10,
     max_stages: int = 300,
+    databases: Sequence[float] = (1.0,),
     eval_starts: int = 100,
     eval_every: int = 25,
     seed: int = 0,
@@ -71,8 +73,8 @@ def train_rlvc(
 
     Args:
         env_id, env_kwargs: the maze (``gym.make`` arguments).
-        interactions: size of the interaction database.
-        n_words, alpha, min_count, max_stages: RLVC settings (see ``RLVCAgent``).
+        interactions: interactions in all (the budget).
+        n_words, alpha, min_count, max_stages, databases: RLVC settings (see ``RLVCAgent``).
         eval_starts: number of fixed start positions of the evaluation.
         eval_every: evaluate the greedy policy every this many stages (and at the end).
         seed: seeds collection and the vocabulary.
@@ -93,7 +95,13 @@ def train_rlvc(
     oracle_return = evaluate_policy(maze, oracle.as_policy(), starts).mean
 
     agent = RLVCAgent(
-        env, n_words=n_words, alpha=alpha, min_count=min_count, max_stages=max_stages, seed=seed
+        env,
+        n_words=n_words,
+        alpha=alpha,
+        min_count=min_count,
+        max_stages=max_stages,
+        databases=databases,
+        seed=seed,
     )
     writer = tensorboard(out / "tensorboard")
 
@@ -115,7 +123,8 @@ def train_rlvc(
     )
     learned = time.perf_counter()
     rlvc_return = agent.rlvc.history[-1].greedy_return
-    # The agent's own database again (same seed), aggregated on true positions instead.
+    # A random database of the same size and seed (the agent's own when it collects only
+    # one), aggregated on true positions instead of visual classes.
     database = collect(env, interactions, max_episode_steps=agent.max_episode_steps, seed=seed)
     grid_return = evaluate_policy(maze, true_grid_policy(maze.geometry, database), starts).mean
     writer.close()
@@ -148,6 +157,7 @@ def train_rlvc(
         "selected_features": len(rlvc.tree.selected_features),
         "vocabulary_size": agent.extractor.n_features,
         "interactions": agent.num_timesteps,
+        "databases": list(agent.databases),
         "seconds": time.perf_counter() - start,
         "learn_seconds": learned - start,
         "seconds_split": {
@@ -169,7 +179,7 @@ def train_rlvc(
             "return ratio (RLVC / oracle)": summary["return_ratio"],
             "RLVC mean discounted return": rlvc_return,
             "oracle mean discounted return": oracle_return,
-            "same data on a true 20x20 grid / oracle": summary["true_grid_return_ratio"],
+            "random data on a true 20x20 grid / oracle": summary["true_grid_return_ratio"],
             "stages (paper 84)": summary["stages"],
             "visual classes (paper 205)": summary["classes"],
             "selected features (paper 200)": summary["selected_features"],

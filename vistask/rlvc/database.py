@@ -9,6 +9,7 @@ scatter-adds (sparse products) instead of dense (interactions x features) produc
 
 from __future__ import annotations
 
+import copy
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -18,8 +19,9 @@ import torch
 
 from vistask.features import Keypoints, VisualFeatureExtractor, check_image_space
 
-# An exploration policy maps (observation, rng) to an action id.
-ExplorationPolicy = Callable[[np.ndarray, np.random.Generator], int]
+# An exploration policy maps a batch of observations (B, H, W, 3) and a generator to (B,)
+# action ids: batches let a policy over visual classes extract features of many views at once.
+ExplorationPolicy = Callable[[np.ndarray, np.random.Generator], np.ndarray]
 
 
 def check_image_env(env: gym.Env) -> None:
@@ -49,7 +51,7 @@ class Transitions:
 
 
 def random_policy(n_actions: int) -> ExplorationPolicy:
-    return lambda obs, rng: int(rng.integers(n_actions))
+    return lambda observations, rng: rng.integers(n_actions, size=len(observations))
 
 
 def collect(
@@ -58,21 +60,31 @@ def collect(
     policy: ExplorationPolicy | None = None,
     max_episode_steps: int = 50,
     seed: int = 0,
+    max_blocked: int | None = None,
+    n_envs: int = 1,
 ) -> Transitions:
     """Collect ``n`` interactions over episodes from the env's random starts.
 
     Args:
         env: image env with Discrete actions.
         n: number of interactions.
-        policy: exploration policy (default: uniformly random actions).
+        policy: batched exploration policy (default: uniformly random actions).
         max_episode_steps: episodes are cut after this many steps (a cut is not terminal).
-        seed: seeds the first reset and the policy's generator.
+        seed: seeds the first reset of each env copy (``seed + i``) and the policy's generator.
+        max_blocked: cut an episode after this many blocked moves in a row (the view did not
+            change), so that a greedy policy stuck against a wall does not fill the database
+            with copies of one interaction (None: never).
+        n_envs: episodes run side by side on deep copies of ``env``, so that the policy sees
+            batches of ``n_envs`` views.
     """
     check_image_env(env)
     if n < 1:
         raise ValueError(f"need at least one interaction, got n={n}")
+    if n_envs < 1:
+        raise ValueError(f"n_envs must be >= 1, got {n_envs}")
     rng = np.random.default_rng(seed)
     policy = policy or random_policy(int(env.action_space.n))
+    envs = [env] + [copy.deepcopy(env) for _ in range(n_envs - 1)]
     percepts: list[np.ndarray] = []
     positions: list[np.ndarray] = []
     obs_i, act, rew, next_i, term = [], [], [], [], []
@@ -83,25 +95,32 @@ def collect(
             positions.append(np.asarray(info["position"]))
         return len(percepts) - 1
 
-    episode = 0
+    # Per env copy: its view, the view's percept index, steps and blocked moves in a row.
+    views, current, steps, blocked = [None] * n_envs, [0] * n_envs, [0] * n_envs, [0] * n_envs
+
+    def start(i: int, first: bool) -> None:
+        views[i], info = envs[i].reset(seed=seed + i if first else None)
+        current[i], steps[i], blocked[i] = add(views[i], info), 0, 0
+
+    for i in range(n_envs):
+        start(i, first=True)
     while len(act) < n:
-        obs, info = env.reset(seed=seed if episode == 0 else None)
-        episode += 1
-        current = add(obs, info)
-        for _ in range(max_episode_steps):
-            action = policy(obs, rng)
-            previous = obs
-            obs, reward, terminated, truncated, info = env.step(action)
+        actions = policy(np.stack(views), rng)
+        for i, action in enumerate(actions[: n - len(act)]):
+            obs, reward, terminated, truncated, info = envs[i].step(int(action))
             # A blocked move shows the same view again: store (and later extract) it once.
-            following = current if np.array_equal(obs, previous) else add(obs, info)
-            obs_i.append(current)
-            act.append(action)
+            same = np.array_equal(obs, views[i])
+            following = current[i] if same else add(obs, info)
+            obs_i.append(current[i])
+            act.append(int(action))
             rew.append(reward)
             next_i.append(following)
             term.append(terminated)
-            current = following
-            if terminated or truncated or len(act) >= n:
-                break
+            views[i], current[i] = obs, following
+            steps[i], blocked[i] = steps[i] + 1, blocked[i] + 1 if same else 0
+            ended = terminated or truncated or steps[i] == max_episode_steps
+            if (ended or blocked[i] == max_blocked) and len(act) < n:
+                start(i, first=False)
     return Transitions(
         percepts,
         np.asarray(obs_i),
@@ -163,18 +182,42 @@ class InteractionDatabase:
         Args:
             transitions: output of ``collect``.
             extractor: the visual feature extractor (vocabulary).
-            detected: keypoints of ``transitions.percepts`` if already extracted.
+            detected: keypoints of ``transitions.percepts`` if already extracted (else the
+                extractor's percept cache serves the percepts that a policy has already seen).
         """
         if detected is None:
-            detected = extractor.keypoints.batch(transitions.percepts)
+            presence = extractor.presence(transitions.percepts)
+        else:
+            presence = extractor.presence_of(detected)
         return cls(
-            presence=extractor.presence_of(detected),
+            presence=presence,
             obs=torch.as_tensor(transitions.obs, dtype=torch.long),
             actions=torch.as_tensor(transitions.actions, dtype=torch.long),
             rewards=torch.as_tensor(transitions.rewards, dtype=torch.float64),
             next_obs=torch.as_tensor(transitions.next_obs, dtype=torch.long),
             terminal=torch.as_tensor(transitions.terminal, dtype=torch.bool),
             positions=transitions.positions,
+        )
+
+    @classmethod
+    def concat(cls, first: InteractionDatabase, second: InteractionDatabase) -> InteractionDatabase:
+        """Both databases' interactions in one (same vocabulary; percepts are not merged)."""
+        if first.n_features != second.n_features:
+            raise ValueError(
+                f"cannot join databases over {first.n_features} and {second.n_features} features"
+            )
+        m = len(first.presence)
+        has_positions = first.positions is not None and second.positions is not None
+        return cls(
+            presence=torch.cat([first.presence, second.presence]),
+            obs=torch.cat([first.obs, second.obs + m]),
+            actions=torch.cat([first.actions, second.actions]),
+            rewards=torch.cat([first.rewards, second.rewards]),
+            next_obs=torch.cat([first.next_obs, second.next_obs + m]),
+            terminal=torch.cat([first.terminal, second.terminal]),
+            positions=np.concatenate([first.positions, second.positions])
+            if has_positions
+            else None,
         )
 
     def interaction_features(self) -> tuple[torch.Tensor, torch.Tensor]:
