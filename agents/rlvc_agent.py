@@ -134,6 +134,7 @@ class RLVCAgent:
         for k, size in enumerate(sizes):
             t0 = time.perf_counter()
             exploring = self.rlvc is not None
+            n_envs = self.n_envs if exploring else 1
             transitions = collect(
                 self.env,
                 size,
@@ -141,9 +142,9 @@ class RLVCAgent:
                 self.max_episode_steps,
                 seed=seed,
                 max_blocked=self.max_blocked if exploring else None,
-                n_envs=self.n_envs if exploring else 1,
+                n_envs=n_envs,
             )
-            seed += self.n_envs if exploring else 1  # env copy i resets with seed + i
+            seed += n_envs  # env copy i resets with seed + i: no two databases share a seed
             t1 = time.perf_counter()
             detected, fitting = None, 0.0  # later databases: the cache holds what the policy saw
             if self.extractor is None:
