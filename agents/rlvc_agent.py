@@ -46,7 +46,9 @@ class RLVCAgent:
         bonferroni: correct alpha for the number of candidate features (see ``find_splits``).
         max_stages: stage cap.
         max_episode_steps: exploration episodes are cut after this many steps.
-        databases: fractions of the budget collected in successive databases (sum 1).
+        databases: fractions of the budget collected in successive databases (sum 1), or
+            their number, for databases of equal size (the paper's "databases of 10,000
+            interactions": ``databases=3`` with 30,000 timesteps).
         keep_databases: run the stages on the union of the databases so far, not the latest.
         refresh_every: stages run on each database but the last, without ``keep_databases``.
         epsilon: exploration rate when collecting on the current classes.
@@ -68,7 +70,7 @@ class RLVCAgent:
         bonferroni: bool = False,
         max_stages: int = 300,
         max_episode_steps: int = 50,
-        databases: Sequence[float] = (1.0,),
+        databases: int | Sequence[float] = 1,
         keep_databases: bool = True,
         refresh_every: int = 20,
         epsilon: float = 0.1,
@@ -90,6 +92,10 @@ class RLVCAgent:
             bonferroni,
         )
         self.max_stages, self.max_episode_steps = max_stages, max_episode_steps
+        if isinstance(databases, int):
+            if databases < 1:
+                raise ValueError(f"databases must be >= 1, got {databases}")
+            databases = (1 / databases,) * databases
         if not databases or min(databases) <= 0 or abs(sum(databases) - 1) > 1e-6:
             raise ValueError(f"databases must be positive fractions summing to 1, got {databases}")
         self.databases, self.keep_databases = tuple(databases), keep_databases

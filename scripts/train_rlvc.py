@@ -3,12 +3,17 @@
 python scripts/train_rlvc.py                     # default VisualMaze-v0, 10,000 interactions
 python scripts/train_rlvc.py --interactions 5000 --env-kwargs '{"step": 0.08}'
 python scripts/train_rlvc.py --databases 0.5,0.25,0.25   # later databases on the classes
+python scripts/train_rlvc.py --interactions 30000 --databases 3   # 3 databases of 10,000
 """
 
 import argparse
 import json
 
 from vistask.train import train_rlvc
+
+
+def databases(text: str) -> int | tuple[float, ...]:
+    return int(text) if text.isdigit() else tuple(float(f) for f in text.split(","))
 
 
 def main() -> None:
@@ -24,10 +29,11 @@ def main() -> None:
     parser.add_argument("--max-stages", type=int, default=300)
     parser.add_argument(
         "--databases",
-        type=lambda text: tuple(float(f) for f in text.split(",")),
-        default=(1.0,),
-        help="budget fractions of successive databases; the first is random, later ones are "
-        "collected epsilon-greedily on the current classes and added to the earlier ones",
+        type=databases,
+        default=1,
+        help="number of equal databases, or budget fractions of successive databases (0.5,0.5); "
+        "the first is random, later ones are collected epsilon-greedily on the current classes "
+        "and added to the earlier ones",
     )
     parser.add_argument("--eval-starts", type=int, default=100)
     parser.add_argument("--eval-every", type=int, default=25)

@@ -164,3 +164,6 @@ def test_later_databases_are_collected_on_the_current_classes_and_kept_or_replac
         RLVCAgent(VisualMazeEnv(**SMALL), databases=(0.5, 0.2))
     with pytest.raises(ValueError, match="cannot fill"):
         RLVCAgent(VisualMazeEnv(**SMALL), databases=(0.999, 0.001)).learn(100)
+    assert RLVCAgent(VisualMazeEnv(**SMALL), databases=4).databases == (0.25,) * 4
+    with pytest.raises(ValueError, match=">= 1"):
+        RLVCAgent(VisualMazeEnv(**SMALL), databases=0)

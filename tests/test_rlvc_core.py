@@ -234,6 +234,14 @@ def test_rlvc_learns_the_synthetic_chain_and_its_incremental_classes_match_the_t
     assert rlvc.history[-1].mean_abs_td < 0.5 * rlvc.history[0].mean_abs_td
 
 
+@pytest.mark.parametrize("max_stages", [2, 200])  # cut while splitting, and run to the end
+def test_learned_q_is_solved_on_the_final_classes(max_stages):
+    db = synthetic_chain(n=1000)
+    rlvc = RLVC(db.n_features, 2, gamma=0.9).learn(db, max_stages=max_stages, progress=False)
+    assert (rlvc.history[-1].splits > 0) == (max_stages == 2)
+    torch.testing.assert_close(rlvc.q, rlvc.solve(db, rlvc.tree.classify(db.presence)))
+
+
 def test_rlvc_save_load_round_trip(tmp_path):
     db = synthetic_chain(n=1000)
     rlvc = RLVC(db.n_features, 2, gamma=0.9).learn(db, progress=False)

@@ -62,7 +62,7 @@ def train_rlvc(
     alpha: float = 0.05,
     min_count: int = 10,
     max_stages: int = 300,
-    databases: Sequence[float] = (1.0,),
+    databases: int | Sequence[float] = 1,
     eval_starts: int = 100,
     eval_every: int = 25,
     seed: int = 0,

@@ -24,18 +24,21 @@ def _chunk_rows(n_centroids: int) -> int:
     return max(64, (1 << 22) // max(n_centroids, 1))
 
 
-def _nearest(x: torch.Tensor, centroids: torch.Tensor):
-    """Nearest centroid of each row of x (M, D) -> (indices (M,), squared distances (M,))."""
+def _nearest(x: torch.Tensor, centroids: torch.Tensor, k: int = 1):
+    """k nearest centroids of each row of x (M, D), nearest first.
+
+    Returns (indices (M, k), squared distances (M, k)).
+    """
     c_sq = (centroids * centroids).sum(1)
-    index = torch.empty(len(x), dtype=torch.long, device=x.device)
-    dist = torch.empty(len(x), dtype=x.dtype, device=x.device)
+    index = torch.empty(len(x), k, dtype=torch.long, device=x.device)
+    dist = torch.empty(len(x), k, dtype=x.dtype, device=x.device)
     chunk = _chunk_rows(len(centroids))
     for s in range(0, len(x), chunk):
         block = x[s : s + chunk]
-        # ||x - c||^2 = ||x||^2 - 2 x.c + ||c||^2; ||x||^2 does not change the argmin.
+        # ||x - c||^2 = ||x||^2 - 2 x.c + ||c||^2; ||x||^2 does not change the order.
         d = torch.addmm(c_sq, block, centroids.T, alpha=-2.0)
-        best, index[s : s + chunk] = d.min(1)
-        dist[s : s + chunk] = (best + (block * block).sum(1)).clamp_min_(0)
+        best, index[s : s + chunk] = d.min(1, keepdim=True) if k == 1 else d.topk(k, largest=False)
+        dist[s : s + chunk] = (best + (block * block).sum(1, keepdim=True)).clamp_min_(0)
     return index, dist
 
 
@@ -50,7 +53,7 @@ def kmeans(x: torch.Tensor, k: int, iters: int = 20, seed: int = 0) -> torch.Ten
     generator = torch.Generator().manual_seed(seed)
     centroids = x[torch.randperm(len(x), generator=generator)[:k].to(x.device)].clone()
     for _ in range(iters):
-        index, dist = _nearest(x, centroids)
+        index, dist = (column.squeeze(1) for column in _nearest(x, centroids))
         counts = torch.bincount(index, minlength=k).to(x.dtype)
         sums = torch.zeros_like(centroids).index_add_(0, index, x)
         empty = counts == 0
@@ -73,28 +76,13 @@ def _assign(
 
     Returns (descriptor index (P,), word (P,)) pairs, ordered by descriptor.
     """
-    if soft_ratio == 1:
-        index, dist = _nearest(x, centroids)
-        if max_distance is None:
-            return torch.arange(len(x)), index
-        keep = dist <= max_distance**2
-        return torch.nonzero(keep).flatten(), index[keep]
-    c_sq = (centroids * centroids).sum(1)
-    k = min(neighbours, len(centroids))
-    chunk = _chunk_rows(len(centroids))
-    rows, words = [], []
-    for s in range(0, len(x), chunk):
-        block = x[s : s + chunk]
-        d = torch.addmm(c_sq, block, centroids.T, alpha=-2.0)
-        d += (block * block).sum(1, keepdim=True)
-        dist, index = d.clamp_min_(0).topk(k, dim=1, largest=False)
-        keep = dist <= dist[:, :1] * soft_ratio**2
-        if max_distance is not None:
-            keep &= dist <= max_distance**2
-        r, c = keep.nonzero(as_tuple=True)
-        rows.append(r + s)
-        words.append(index[r, c])
-    return torch.cat(rows), torch.cat(words)
+    k = 1 if soft_ratio == 1 else min(neighbours, len(centroids))
+    index, dist = _nearest(x, centroids, k)
+    keep = dist <= dist[:, :1] * soft_ratio**2
+    if max_distance is not None:
+        keep &= dist <= max_distance**2
+    rows, column = keep.nonzero(as_tuple=True)
+    return rows, index[rows, column]
 
 
 def _digest(image: np.ndarray) -> bytes:

@@ -146,6 +146,7 @@ class RLVC:
         rows, features = db.interaction_features()
         classes = self.tree.classify(db.presence)
         bar = tqdm(range(max_stages), desc="RLVC stages", disable=not progress, leave=False)
+        stale = True  # Q is not yet solved on the current classes of this database
         for _ in bar:
             start = time.perf_counter()
             self.q = self.solve(db, classes)
@@ -170,6 +171,7 @@ class RLVC:
                 # Incremental reclassification: only percepts of the split class can move.
                 moved = (classes == split.state) & db.presence[:, split.feature]
                 classes[moved] = new_class
+            stale = bool(splits)
             done = time.perf_counter()
             self.timing.solve += solved - start
             self.timing.split += done - solved
@@ -184,7 +186,8 @@ class RLVC:
             )
             last = not splits or record.stage + 1 == max_stages
             if evaluate is not None and (last or (record.stage + 1) % eval_every == 0):
-                self.q = self.solve(db, classes)
+                if stale:
+                    self.q, stale = self.solve(db, classes), False
                 t = time.perf_counter()
                 record.greedy_return = float(evaluate(self))
                 self.timing.evaluate += time.perf_counter() - t
@@ -194,7 +197,8 @@ class RLVC:
                 on_stage(record)
             if not splits:
                 break
-        self.q = self.solve(db, classes)
+        if stale:
+            self.q = self.solve(db, classes)
         return self
 
     def values(self) -> torch.Tensor:
