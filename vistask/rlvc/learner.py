@@ -149,7 +149,8 @@ class RLVC:
         stale = True  # Q is not yet solved on the current classes of this database
         for _ in bar:
             start = time.perf_counter()
-            self.q = self.solve(db, classes)
+            if stale:  # not when an evaluation already solved the current classes
+                self.q = self.solve(db, classes)
             s, s_next = classes[db.obs], classes[db.next_obs]
             deltas = td_errors(self.q, s, db.actions, db.rewards, s_next, db.terminal, self.gamma)
             solved = time.perf_counter()
