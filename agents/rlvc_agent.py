@@ -58,6 +58,9 @@ class RLVCAgent:
         gamma: discount (default ``env.unwrapped.gamma``, else 0.99).
         keypoints: descriptor extractor (default ``SiftExtractor()``).
         soft_ratio: soft vocabulary assignment (see ``VisualFeatureExtractor``).
+        vocabulary_groups: coarse groups of the two-level vocabulary, whose matching is several
+            times faster than exact matching (0: flat vocabulary, exact nearest prototype).
+        probes: groups searched per descriptor in the two-level vocabulary.
         seed: seeds collection and the vocabulary.
     """
 
@@ -75,10 +78,12 @@ class RLVCAgent:
         refresh_every: int = 20,
         epsilon: float = 0.1,
         max_blocked: int | None = 2,
-        n_envs: int = 16,
+        n_envs: int = 64,
         gamma: float | None = None,
         keypoints: SiftExtractor | None = None,
         soft_ratio: float = 1.0,
+        vocabulary_groups: int = 64,
+        probes: int = 3,
         seed: int = 0,
     ) -> None:
         if env is not None:
@@ -105,6 +110,7 @@ class RLVCAgent:
         self.gamma = 0.99 if gamma is None else float(gamma)
         self.keypoints = keypoints or SiftExtractor()
         self.soft_ratio = soft_ratio
+        self.vocabulary_groups, self.probes = vocabulary_groups, probes
         self.extractor: VisualFeatureExtractor | None = None
         self.rlvc: RLVC | None = None
         self.num_timesteps = 0
@@ -163,6 +169,8 @@ class RLVCAgent:
                     max_descriptors=20_000,
                     iters=10,
                     soft_ratio=self.soft_ratio,
+                    groups=self.vocabulary_groups,
+                    probes=self.probes,
                     seed=self.seed,
                 )
                 self.rlvc = RLVC(
@@ -253,6 +261,8 @@ class RLVCAgent:
                     "n_envs": self.n_envs,
                     "gamma": self.gamma,
                     "soft_ratio": self.soft_ratio,
+                    "vocabulary_groups": self.vocabulary_groups,
+                    "probes": self.probes,
                     "seed": self.seed,
                 },
                 "classifier": self.classifier.state_dict(),

@@ -9,7 +9,7 @@ from vistask.features.bench import bench_features
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--percepts", type=int, default=2000)
-    parser.add_argument("--words", type=int, default=2048)
+    parser.add_argument("--words", type=int, default=8192)
     parser.add_argument("--env-kwargs", type=json.loads, default={})
     parser.add_argument("--threads", type=int, default=None, help="extraction threads")
     parser.add_argument("--seed", type=int, default=0)

@@ -24,6 +24,12 @@ def main() -> None:
     parser.add_argument("--env-kwargs", type=json.loads, default={}, help="JSON dict for gym.make")
     parser.add_argument("--interactions", type=int, default=10_000)
     parser.add_argument("--words", type=int, default=8192, help="vocabulary size")
+    parser.add_argument(
+        "--groups",
+        type=int,
+        default=64,
+        help="coarse groups of the two-level vocabulary (0: flat vocabulary, exact matching)",
+    )
     parser.add_argument("--alpha", type=float, default=0.05, help="t-test significance level")
     parser.add_argument("--min-count", type=int, default=10)
     parser.add_argument("--max-stages", type=int, default=300)
@@ -48,6 +54,7 @@ def main() -> None:
         args.env_kwargs,
         args.interactions,
         args.words,
+        args.groups,
         args.alpha,
         args.min_count,
         args.max_stages,

@@ -8,6 +8,7 @@ import torch
 
 from vistask.envs import VisualMazeEnv
 from vistask.features import SiftExtractor, VisualFeatureExtractor, kmeans
+from vistask.features.vocabulary import CoarseGroups, grouped_kmeans
 
 
 @pytest.fixture(scope="module")
@@ -120,6 +121,60 @@ def test_words_are_the_nearest_prototypes_within_max_distance(extractor, percept
     kept = np.concatenate([w for _, w in wide.words(detected)])
     assert len(kept) == int(near.sum()) < len(x)
     assert np.array_equal(kept % len(extractor.centroids), nearest[near].numpy())
+
+
+@pytest.fixture(scope="module")
+def grouped(percepts) -> VisualFeatureExtractor:
+    return VisualFeatureExtractor.fit(percepts, n_words=256, iters=5, groups=8, probes=2)
+
+
+def descriptors_of(extractor, percepts) -> torch.Tensor:
+    return torch.from_numpy(
+        np.concatenate([k.descriptors for k in extractor.keypoints.batch(percepts)])
+    )
+
+
+def test_grouped_vocabulary_probing_every_group_is_exact(grouped, percepts):
+    x = descriptors_of(grouped, percepts[:30])
+    exact = torch.cdist(x, grouped.centroids).argmin(1)
+    every = CoarseGroups(grouped.groups.centres, grouped.groups.group_of, probes=8)
+    assert torch.equal(every.nearest(x, grouped.centroids)[0][:, 0], exact)
+    # Two probes of eight groups: the nearest prototype of most, not all, descriptors.
+    agree = (grouped.nearest(x)[0][:, 0] == exact).float().mean()
+    assert 0.85 < agree < 1
+    one = CoarseGroups(grouped.groups.centres, grouped.groups.group_of, probes=1)
+    assert (one.nearest(x, grouped.centroids)[0][:, 0] == exact).float().mean() < agree
+
+
+def test_grouped_kmeans_shares_the_words_by_descriptor_count():
+    rng = np.random.default_rng(0)
+    # Three blobs of 600, 300 and 100 points: 20 words split about 12 / 6 / 2.
+    blobs = [rng.normal(centre, 1.0, (n, 4)) for centre, n in ((0, 600), (20, 300), (-20, 100))]
+    x = torch.from_numpy(np.concatenate(blobs)).float()
+    prototypes, group_of, centres = grouped_kmeans(x, 20, groups=3, iters=10)
+    assert prototypes.shape == (20, 4) and len(centres) == 3
+    assert sorted(torch.bincount(group_of).tolist()) == [2, 6, 12]
+    # Every prototype lies in its group's blob.
+    owner = torch.cdist(prototypes, centres).argmin(1)
+    assert torch.equal(owner, group_of)
+
+
+def test_grouped_vocabulary_round_trip_soft_words_and_errors(tmp_path, grouped, percepts):
+    grouped.save(tmp_path / "vocab.pt")
+    loaded = VisualFeatureExtractor.load(tmp_path / "vocab.pt")
+    assert loaded.fingerprint == grouped.fingerprint and loaded.groups.probes == 2
+    assert torch.equal(loaded.presence(percepts), grouped.presence(percepts))
+    flat = VisualFeatureExtractor(grouped.keypoints, grouped.centroids)
+    assert flat.fingerprint != grouped.fingerprint
+    soft = VisualFeatureExtractor(
+        grouped.keypoints, grouped.centroids, soft_ratio=1.3, groups=grouped.groups
+    )
+    hard, softer = grouped.presence(percepts), soft.presence(percepts)
+    assert (softer | hard).equal(softer) and softer.sum() > hard.sum()
+    with pytest.raises(ValueError, match="group of each"):
+        VisualFeatureExtractor(grouped.keypoints, grouped.centroids[:100], groups=grouped.groups)
+    with pytest.raises(ValueError, match="probes"):
+        CoarseGroups(grouped.groups.centres, grouped.groups.group_of, probes=0)
 
 
 def test_kmeans_converges_to_a_fixed_point_with_lower_error():

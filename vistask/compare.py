@@ -78,6 +78,8 @@ class CompareConfig:
         n_words: RLVC vocabulary size (2048, the size the README's comparison was measured
             with; ``RLVCAgent`` defaults to 8192, which learns better classes from 10k
             interactions).
+        vocabulary_groups: RLVC's two-level vocabulary (0: the flat vocabulary with exact
+            matching, with which the README's comparison was measured).
         grid: cells per side of the tabular baseline's state discretization.
         dqn_kwargs, ppo_kwargs: extra SB3 constructor arguments (override the defaults).
         device: torch device of the SB3 networks.
@@ -91,6 +93,7 @@ class CompareConfig:
     seed0: int = 0
     eval_starts: int = 100
     n_words: int = 2048
+    vocabulary_groups: int = 0
     grid: int = 10
     dqn_kwargs: dict = field(default_factory=dict)
     ppo_kwargs: dict = field(default_factory=dict)
@@ -182,7 +185,9 @@ def run_rlvc(
     for budget in config.budgets:
         env = gym.make(config.env_id, **config.env_kwargs)
         t0 = time.perf_counter()
-        agent = RLVCAgent(env, n_words=config.n_words, seed=seed)
+        agent = RLVCAgent(
+            env, n_words=config.n_words, vocabulary_groups=config.vocabulary_groups, seed=seed
+        )
         agent.learn(budget, progress_bar=False)
         train += time.perf_counter() - t0
         returns.append(evaluate(lambda percepts, positions, a=agent: a.predict(percepts)[0]))

@@ -59,6 +59,7 @@ def train_rlvc(
     env_kwargs: dict | None = None,
     interactions: int = 10_000,
     n_words: int = 8192,
+    vocabulary_groups: int = 64,
     alpha: float = 0.05,
     min_count: int = 10,
     max_stages: int = 300,
@@ -74,7 +75,8 @@ def train_rlvc(
     Args:
         env_id, env_kwargs: the maze (``gym.make`` arguments).
         interactions: interactions in all (the budget).
-        n_words, alpha, min_count, max_stages, databases: RLVC settings (see ``RLVCAgent``).
+        n_words, vocabulary_groups, alpha, min_count, max_stages, databases: RLVC settings
+            (see ``RLVCAgent``).
         eval_starts: number of fixed start positions of the evaluation.
         eval_every: evaluate the greedy policy every this many stages (and at the end).
         seed: seeds collection and the vocabulary.
@@ -97,6 +99,7 @@ def train_rlvc(
     agent = RLVCAgent(
         env,
         n_words=n_words,
+        vocabulary_groups=vocabulary_groups,
         alpha=alpha,
         min_count=min_count,
         max_stages=max_stages,
@@ -156,6 +159,7 @@ def train_rlvc(
         "classes": rlvc.n_classes,
         "selected_features": len(rlvc.tree.selected_features),
         "vocabulary_size": agent.extractor.n_features,
+        "vocabulary_groups": vocabulary_groups,
         "interactions": agent.num_timesteps,
         "databases": list(agent.databases),
         "seconds": time.perf_counter() - start,

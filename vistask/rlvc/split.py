@@ -88,31 +88,38 @@ def find_splits(
     keep = row_group >= 0
     key = row_group[keep] * n_features + features[keep]
     d = deltas[rows[keep]]
-    shape, size = (len(active), n_features), len(active) * n_features
-    n_f = torch.bincount(key, minlength=size).double().view(shape)
-    s1_f = torch.zeros(size, dtype=torch.float64).index_add_(0, key, d).view(shape)
-    s2_f = torch.zeros(size, dtype=torch.float64).index_add_(0, key, d * d).view(shape)
+    size = len(active) * n_features
     n_g, s1_g, s2_g = n_g[active], s1_g[active], s2_g[active]
+    # Candidates: (group, feature) pairs with min_count on both sides, a small share of the
+    # group x feature table once classes are small; the statistics below are per candidate.
+    n_f = torch.bincount(key, minlength=size)
+    room = (n_g.long() - min_count)[:, None]
+    both_sides = (n_f.view(-1, n_features) >= min_count) & (n_f.view(-1, n_features) <= room)
+    candidate = torch.nonzero(both_sides.flatten()).flatten()
+    if len(candidate) == 0:
+        return []
+    cg, cf = candidate // n_features, candidate % n_features  # group row, feature
+    s1_f = torch.zeros(size, dtype=torch.float64).index_add_(0, key, d)[candidate]
+    s2_f = torch.zeros(size, dtype=torch.float64).index_add_(0, key, d * d)[candidate]
+    n_f = n_f[candidate].double()
+    n_gc, s1_gc, s2_gc = n_g[cg], s1_g[cg], s2_g[cg]
 
-    n_nf = n_g[:, None] - n_f
-    s1_nf, s2_nf = s1_g[:, None] - s1_f, s2_g[:, None] - s2_f
+    n_nf, s1_nf, s2_nf = n_gc - n_f, s1_gc - s1_f, s2_gc - s2_f
     sse_f, sse_nf = _sse(n_f, s1_f, s2_f), _sse(n_nf, s1_nf, s2_nf)
-    reduction = _sse(n_g, s1_g, s2_g)[:, None] - sse_f - sse_nf
-    valid = (n_f >= min_count) & (n_nf >= min_count) & (reduction > 0)
+    reduction = _sse(n_gc, s1_gc, s2_gc) - sse_f - sse_nf
+    valid = reduction > 0
     state_of, action_of = active // n_actions, active % n_actions
-    tests = torch.zeros(n_states, dtype=torch.float64).index_add_(
-        0, state_of, valid.sum(1).double()
-    )
+    tests = torch.zeros(n_states, dtype=torch.float64).index_add_(0, state_of[cg], valid.double())
     level = alpha / tests.clamp_min(1) if bonferroni else torch.full((n_states,), alpha)
 
     # Welch's t for every candidate, in torch; exact p-values (scipy) only where |t| beats the
     # normal quantile, a lower bound of every Student quantile, so the rest cannot pass.
-    v_f, v_nf = sse_f / (n_f - 1).clamp_min(1), sse_nf / (n_nf - 1).clamp_min(1)
-    se2_f, se2_nf = v_f / n_f.clamp_min(1), v_nf / n_nf.clamp_min(1)
-    diff = s1_f / n_f.clamp_min(1) - s1_nf / n_nf.clamp_min(1)
+    v_f, v_nf = sse_f / (n_f - 1), sse_nf / (n_nf - 1)
+    se2_f, se2_nf = v_f / n_f, v_nf / n_nf
+    diff = s1_f / n_f - s1_nf / n_nf
     t = diff.abs() / (se2_f + se2_nf).sqrt()  # inf for a perfect split, nan for no difference
-    row_level = level[state_of][:, None].expand_as(t)
-    z = torch.from_numpy(stats.norm.isf(row_level.numpy() / 2))
+    group_level = level[state_of]
+    z = torch.from_numpy(stats.norm.isf(group_level.numpy() / 2))[cg]
     maybe = valid & (t.nan_to_num(0.0) > z)
     p = torch.ones_like(t)
     if maybe.any():
@@ -120,14 +127,24 @@ def find_splits(
         df = (a + b) ** 2 / (a**2 / (n_f[maybe] - 1) + b**2 / (n_nf[maybe] - 1))
         df = df.nan_to_num(nan=1.0).clamp_min(1)
         p[maybe] = torch.from_numpy(2 * stats.t.sf(t[maybe].numpy(), df.numpy()))
-    significant = maybe & (p < row_level)
+    significant = maybe & (p < group_level[cg])
 
-    # Eq. (7) among the significant candidates: the purest split of every class.
-    score = reduction.masked_fill(~significant, -torch.inf)
-    group_best, group_feature = score.max(dim=1)
-    splits: dict[int, Split] = {}
-    for k in torch.nonzero(torch.isfinite(group_best)).flatten().tolist():
-        state, f = int(state_of[k]), int(group_feature[k])
-        if state not in splits or group_best[k] > splits[state].reduction:
-            splits[state] = Split(state, f, int(action_of[k]), float(group_best[k]), float(p[k, f]))
-    return sorted(splits.values(), key=lambda split: -split.reduction)
+    # Eq. (7) among the significant candidates: the purest split of every class; among equal
+    # ones (features with the same presence split alike), the first in (action, feature) order.
+    best = torch.nonzero(significant).flatten()
+    best = best[torch.argsort(reduction[best], descending=True, stable=True)]
+    state = state_of[cg[best]]
+    first = torch.full((n_states,), len(best)).scatter_reduce_(
+        0, state, torch.arange(len(best)), "amin"
+    )
+    splits = [
+        Split(
+            int(state_of[cg[k]]),
+            int(cf[k]),
+            int(action_of[cg[k]]),
+            float(reduction[k]),
+            float(p[k]),
+        )
+        for k in best[first[first < len(best)]].tolist()
+    ]
+    return sorted(splits, key=lambda split: -split.reduction)
