@@ -70,11 +70,15 @@ def value_iteration(
         raise ValueError(f"gamma must be in [0, 1), got {gamma}")
     visited = mdp.counts > 0
     n_states, n_actions = mdp.counts.shape
-    t = mdp.transitions.reshape(n_states * n_actions, n_states)
+    # T is as sparse as the data (at most one successor class per interaction): iterate over
+    # its nonzero entries, not over the dense (S * A, S) matrix.
+    sa, successor = mdp.transitions.reshape(n_states * n_actions, n_states).nonzero(as_tuple=True)
+    p = mdp.transitions.view(n_states * n_actions, n_states)[sa, successor]
     r = mdp.rewards.reshape(-1)
     v = torch.zeros(n_states, dtype=torch.float64)
     for _ in range(max_iters):
-        q = (r + gamma * (t @ v)).view(n_states, n_actions)
+        expected = torch.zeros_like(r).index_add_(0, sa, p * v[successor])
+        q = (r + gamma * expected).view(n_states, n_actions)
         new_v = state_values(q.masked_fill(~visited, -torch.inf))
         converged = (new_v - v).abs().max() < tol
         v = new_v
