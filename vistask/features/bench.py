@@ -14,9 +14,9 @@ from vistask.logging import print_table, run_dir, write_summary
 
 # name -> (colour weight of the descriptors, coarse groups of the vocabulary; 0: flat)
 VARIANTS = {
-    "grey SIFT, 32 groups (default)": (0.0, 32),
+    "grey SIFT, 64 groups (default)": (0.0, 64),
     "grey SIFT, flat": (0.0, 0),
-    "SIFT + chromaticity, 32 groups": (0.5, 32),
+    "SIFT + chromaticity, 64 groups": (0.5, 64),
 }
 
 
@@ -34,7 +34,7 @@ def bench_features(
     Percepts are maze windows at random free positions. For each variant (descriptor colour
     weight, vocabulary groups) it times keypoint extraction (batched, ``threads`` threads),
     vocabulary fitting, and word assignment, in one batch and in batches of 16 views (what a
-    control loop of 16 envs matches); the first variant's figures are the headline.
+    control loop of 16 views matches); the first variant's figures are the headline.
     ``exact_nearest_share`` is the share of descriptors given their nearest prototype (1 for a
     flat vocabulary; a grouped one searches only the prototypes of a few groups).
     """

@@ -60,7 +60,7 @@ class CoarseGroups:
 
     centres: torch.Tensor
     group_of: torch.Tensor
-    probes: int = 2
+    probes: int = 3
 
     def __post_init__(self) -> None:
         if self.probes < 1:
@@ -256,7 +256,7 @@ class VisualFeatureExtractor:
         max_distance: float | None = None,
         soft_ratio: float = 1.0,
         groups: int = 0,
-        probes: int = 2,
+        probes: int = 3,
         seed: int = 0,
     ) -> VisualFeatureExtractor:
         """Learn the vocabulary by k-means over descriptors of sample percepts.
