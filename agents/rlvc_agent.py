@@ -30,7 +30,8 @@ class RLVCAgent:
     uniformly random actions, each later one epsilon-greedily on the current classes. With
     ``keep_databases`` the stages run on the union of all databases so far (each round until
     nothing splits); without, each database replaces the previous one for ``refresh_every``
-    stages.
+    stages. After ``learn``, ``database`` holds the interactions the last stages ran on (like
+    SB3's replay buffer, it is not saved).
 
     Example:
         >>> env = gym.make("vistask/VisualMaze-v0")
@@ -113,6 +114,7 @@ class RLVCAgent:
         self.vocabulary_groups, self.probes = vocabulary_groups, probes
         self.extractor: VisualFeatureExtractor | None = None
         self.rlvc: RLVC | None = None
+        self.database: InteractionDatabase | None = None
         self.num_timesteps = 0
         self.timing = {"collect": 0.0, "extract": 0.0, "vocabulary": 0.0}
 
@@ -185,6 +187,7 @@ class RLVCAgent:
             latest = InteractionDatabase.build(transitions, self.extractor, detected)
             keep = self.keep_databases and db is not None
             db = InteractionDatabase.concat(db, latest) if keep else latest
+            self.database = db
             self.timing["collect"] += t1 - t0
             self.timing["extract"] += time.perf_counter() - t1 - fitting
             self.timing["vocabulary"] += fitting

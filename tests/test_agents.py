@@ -37,6 +37,12 @@ def test_rlvc_reaches_near_oracle_return_on_a_small_maze(small_agent):
     random = evaluate_policy(maze, lambda obs, pos: rng.integers(4, size=len(obs)), starts).mean
     assert rlvc >= 0.85 * oracle > random
     assert small_agent.rlvc.n_classes > 4
+    # The agent keeps the interactions it learned from, with positions for the ceiling.
+    database = small_agent.database
+    assert len(database) == small_agent.num_timesteps == 4000
+    assert database.positions is not None and len(database.positions) == len(database.presence)
+    ceiling = evaluate_policy(maze, true_grid_policy(maze.geometry, database, grid=8), starts)
+    assert ceiling.mean >= 0.9 * oracle
 
 
 def test_true_grid_aggregation_of_random_interactions_is_near_the_oracle():
