@@ -72,8 +72,9 @@ def value_iteration(
     n_states, n_actions = mdp.counts.shape
     # T is as sparse as the data (at most one successor class per interaction): iterate over
     # its nonzero entries, not over the dense (S * A, S) matrix.
-    sa, successor = mdp.transitions.reshape(n_states * n_actions, n_states).nonzero(as_tuple=True)
-    p = mdp.transitions.view(n_states * n_actions, n_states)[sa, successor]
+    t = mdp.transitions.reshape(n_states * n_actions, n_states)
+    sa, successor = t.nonzero(as_tuple=True)
+    p = t[sa, successor]
     r = mdp.rewards.reshape(-1)
     v = torch.zeros(n_states, dtype=torch.float64)
     for _ in range(max_iters):

@@ -133,10 +133,10 @@ def find_splits(
     # ones (features with the same presence split alike), the first in (action, feature) order.
     best = torch.nonzero(significant).flatten()
     best = best[torch.argsort(reduction[best], descending=True, stable=True)]
-    state = state_of[cg[best]]
     first = torch.full((n_states,), len(best)).scatter_reduce_(
-        0, state, torch.arange(len(best)), "amin"
+        0, state_of[cg[best]], torch.arange(len(best)), "amin"
     )
+    chosen = best[first[first < len(best)]].tolist()  # one candidate per splitting class
     splits = [
         Split(
             int(state_of[cg[k]]),
@@ -145,6 +145,6 @@ def find_splits(
             float(reduction[k]),
             float(p[k]),
         )
-        for k in best[first[first < len(best)]].tolist()
+        for k in chosen
     ]
     return sorted(splits, key=lambda split: -split.reduction)
