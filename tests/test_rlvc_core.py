@@ -76,6 +76,58 @@ def test_min_count_bounds_each_side_of_a_split():
     assert split.feature == 0 and split.p_value == 0.0
 
 
+def brute_force_splits(presence, states, actions, deltas, n_states, n_actions, alpha, min_count):
+    """Eq. (7) and Welch's t-test (scipy), class by class, action by action, feature by feature."""
+    from scipy import stats
+
+    best = {}
+    for s in range(n_states):
+        candidates = []
+        for a in range(n_actions):
+            group = (states == s) & (actions == a)
+            d = deltas[group].numpy()
+            for f in range(presence.shape[1]):
+                has = presence[group, f].numpy()
+                if has.sum() < min_count or (~has).sum() < min_count:
+                    continue
+                sse = ((d - d.mean()) ** 2).sum()
+                split = sum(((x - x.mean()) ** 2).sum() for x in (d[has], d[~has]))
+                if sse - split > 0:
+                    p = stats.ttest_ind(d[has], d[~has], equal_var=False).pvalue
+                    candidates.append((sse - split, a, f, p))
+        level = alpha / max(len(candidates), 1)  # Bonferroni over the class's candidates
+        significant = [c for c in candidates if c[3] < level]
+        if significant:
+            best[s] = max(significant, key=lambda c: c[0])  # the first among equals
+    return best
+
+
+def test_split_search_equals_a_per_class_brute_force():
+    rng = np.random.default_rng(3)
+    n, f, n_states, n_actions = 1500, 40, 5, 3
+    presence = torch.from_numpy(rng.random((n, f)) < 0.4)
+    presence[:, 30:] = presence[:, 20:30]  # twin features: equal splits, ties to break alike
+    states = torch.from_numpy(rng.integers(0, n_states, n))
+    actions = torch.from_numpy(rng.integers(0, n_actions, n))
+    deltas = torch.from_numpy(rng.normal(0, 1, n))
+    for s in range(n_states - 1):  # a planted feature per class, under one action
+        deltas += (1.0 + s) * (presence[:, 7 * s + 3] & (states == s) & (actions == s % 3))
+    deltas += 3.0 * (presence[:, 25] & (states == 4))  # a twin feature, under every action
+    rows, features = sparse(presence)
+    splits = find_splits(
+        rows, features, states, actions, deltas, n_states, n_actions, f, 0.05, 8, True
+    )
+    expected = brute_force_splits(presence, states, actions, deltas, n_states, n_actions, 0.05, 8)
+    assert {s.state for s in splits} == set(expected) and len(expected) >= 3
+    for split in splits:
+        reduction, action, feature, p_value = expected[split.state]
+        assert (split.action, split.feature) == (action, feature)
+        assert split.reduction == pytest.approx(reduction, rel=1e-9)
+        assert split.p_value == pytest.approx(p_value, rel=1e-6)
+    assert [s.reduction for s in splits] == sorted((s.reduction for s in splits), reverse=True)
+    assert expected[4][2] == 25  # of the twins 25 and 35, the first
+
+
 def test_value_iteration_matches_a_hand_solved_mdp():
     # Two states; in s0, action 1 moves to s1 (reward 0); in s1, action 0 ends with reward 10.
     # Other actions stay put with reward 0. Q*(s1, 0) = 10, Q*(s0, 1) = 0.5 * 10 = 5 (gamma 0.5).
