@@ -8,7 +8,7 @@ import torch
 
 from vistask.envs import VisualMazeEnv
 from vistask.features import SiftExtractor, VisualFeatureExtractor, kmeans
-from vistask.features.vocabulary import CoarseGroups, grouped_kmeans
+from vistask.features.vocabulary import SMALL_BATCH, CoarseGroups, grouped_kmeans
 
 
 @pytest.fixture(scope="module")
@@ -144,6 +144,11 @@ def test_grouped_vocabulary_probing_every_group_is_exact(grouped, percepts):
     assert 0.85 < agree < 1
     one = CoarseGroups(grouped.groups.centres, grouped.groups.group_of, probes=1)
     assert (one.nearest(x, grouped.centroids)[0][:, 0] == exact).float().mean() < agree
+    # A few descriptors (one percept) take another path to the same words, nearest or soft.
+    assert len(x) > SMALL_BATCH > 40
+    for k in (1, 3):
+        pieces = [grouped.nearest(x[s : s + 40], k)[0] for s in range(0, len(x), 40)]
+        assert torch.equal(torch.cat(pieces), grouped.nearest(x, k)[0])
 
 
 def test_grouped_kmeans_shares_the_words_by_descriptor_count():

@@ -33,8 +33,9 @@ def bench_features(
 
     Percepts are maze windows at random free positions. For each variant (descriptor colour
     weight, vocabulary groups) it times keypoint extraction (batched, ``threads`` threads),
-    vocabulary fitting, and word assignment, in one batch and in batches of 16 views (what a
-    control loop of 16 views matches); the first variant's figures are the headline.
+    vocabulary fitting, and word assignment: in one batch, in batches of 16 views (what 16
+    envs side by side match) and one view at a time (a single env's loop); the first
+    variant's figures are the headline.
     ``exact_nearest_share`` is the share of descriptors given their nearest prototype (1 for a
     flat vocabulary; a grouped one searches only the prototypes of a few groups).
     """
@@ -63,12 +64,17 @@ def bench_features(
         for s in range(0, len(detected), 16):
             extractor.presence_of(detected[s : s + 16])
         t4 = time.perf_counter()
+        singles = detected[:200]
+        for one in singles:
+            extractor.presence_of([one])
+        t5 = time.perf_counter()
         x = torch.from_numpy(np.concatenate([k.descriptors for k in detected]))
         exact = VisualFeatureExtractor(keypoints, extractor.centroids).nearest(x)[0]
         results[name] = {
             "keypoints_ms_per_percept": 1e3 * (t1 - t0) / percepts,
             "assign_ms_per_percept": 1e3 * (t3 - t2) / percepts,
             "assign_ms_per_percept_batches_of_16": 1e3 * (t4 - t3) / percepts,
+            "assign_ms_one_percept_at_a_time": 1e3 * (t5 - t4) / len(singles),
             "ms_per_percept": 1e3 * ((t1 - t0) + (t3 - t2)) / percepts,
             "vocabulary_fit_seconds": t2 - t1,
             "exact_nearest_share": float((extractor.nearest(x)[0] == exact).float().mean()),

@@ -48,6 +48,9 @@ def _nearest(x: torch.Tensor, centroids: torch.Tensor, k: int = 1):
     return index, dist
 
 
+SMALL_BATCH = 200  # descriptors: below, one product with every prototype beats the group loop
+
+
 @dataclass
 class CoarseGroups:
     """Prototypes grouped under coarse centres, searched group by group.
@@ -69,11 +72,18 @@ class CoarseGroups:
         order = torch.argsort(self.group_of, stable=True)
         bounds = torch.bincount(self.group_of, minlength=len(self.centres)).cumsum(0)
         self.members = list(torch.tensor_split(order, bounds[:-1]))
+        # (G, largest group) prototype ids, -1 past a group's end.
+        self.padded = torch.nn.utils.rnn.pad_sequence(
+            self.members, batch_first=True, padding_value=-1
+        )
 
     def nearest(self, x: torch.Tensor, centroids: torch.Tensor, k: int = 1):
         """k nearest prototypes of each row of x (M, D) among its probed groups, nearest
         first: (indices (M, k), squared distances (M, k)), like ``_nearest``."""
-        groups = _nearest(x, self.centres, self.probes)[0].flatten()  # (M * P,)
+        probed = _nearest(x, self.centres, self.probes)[0]  # (M, P)
+        if len(x) < SMALL_BATCH:
+            return self._nearest_among_all(x, centroids, probed, k)
+        groups = probed.flatten()  # (M * P,)
         index = torch.zeros(len(groups), k, dtype=torch.long, device=x.device)
         dist = torch.full((len(groups), k), torch.inf, dtype=x.dtype, device=x.device)
         # One block of rows per group: the (row, probe) pairs that probe it.
@@ -88,6 +98,19 @@ class CoarseGroups:
             index[pairs, :kg], dist[pairs, :kg] = members[found], d
         dist, best = dist.view(len(x), -1).topk(k, largest=False)
         return index.view(len(x), -1).gather(1, best), dist
+
+    def _nearest_among_all(self, x, centroids, probed, k):
+        """The same search for a few descriptors (one percept, as a control loop has): one
+        product with every prototype, then each row's probed groups, beats a loop over groups."""
+        columns = self.padded[probed].flatten(1)  # (M, P * largest group)
+        d = torch.addmm((centroids * centroids).sum(1), x, centroids.T, alpha=-2.0)
+        d = d.gather(1, columns.clamp_min(0)).masked_fill_(columns < 0, torch.inf)
+        if d.shape[1] < k:  # tiny vocabularies: fewer candidates than neighbours asked for
+            d = torch.nn.functional.pad(d, (0, k - d.shape[1]), value=torch.inf)
+            columns = torch.nn.functional.pad(columns, (0, k - columns.shape[1]), value=0)
+        best, position = d.topk(k, largest=False)
+        dist = (best + (x * x).sum(1, keepdim=True)).clamp_min_(0)
+        return columns.gather(1, position).clamp_min_(0), dist
 
 
 def kmeans(x: torch.Tensor, k: int, iters: int = 20, seed: int = 0) -> torch.Tensor:
