@@ -36,7 +36,8 @@ def check_image_env(env: gym.Env) -> None:
 class Transitions:
     """Raw interactions as collected: percepts (M images), and per interaction i the indices
     ``obs[i]``, ``next_obs[i]`` into ``percepts``, ``actions``, ``rewards``, ``terminal``.
-    ``positions`` (M, ...) keeps ``info["position"]`` when the env reports it (plots only)."""
+    ``positions`` (M, ...) keeps ``info["position"]`` when the env reports it (plots and the
+    true-grid ceiling only; the learner never reads it)."""
 
     percepts: list[np.ndarray]
     obs: np.ndarray
@@ -140,7 +141,8 @@ class InteractionDatabase:
         presence: (M, F) bool, feature presence of each unique percept.
         obs, next_obs: (N,) long percept indices of x_t and x_{t+1}.
         actions: (N,) long. rewards: (N,) float64. terminal: (N,) bool.
-        positions: (M, 2) true positions when the env reported them (plots only), else None.
+        positions: (M, 2) true positions when the env reported them, else None (plots and the
+            true-grid ceiling only; the learner never reads them).
     """
 
     presence: torch.Tensor
