@@ -180,6 +180,8 @@ def test_grouped_vocabulary_round_trip_soft_words_and_errors(tmp_path, grouped, 
         VisualFeatureExtractor(grouped.keypoints, grouped.centroids[:100], groups=grouped.groups)
     with pytest.raises(ValueError, match="probes"):
         CoarseGroups(grouped.groups.centres, grouped.groups.group_of, probes=0)
+    with pytest.raises(ValueError, match="group by group"):
+        CoarseGroups(grouped.groups.centres, grouped.groups.group_of.flip(0))
 
 
 def test_kmeans_converges_to_a_fixed_point_with_lower_error():

@@ -30,12 +30,16 @@ def _chunk_rows(n_centroids: int) -> int:
     return max(64, (1 << 22) // max(n_centroids, 1))
 
 
-def _nearest(x: torch.Tensor, centroids: torch.Tensor, k: int = 1):
-    """k nearest centroids of each row of x (M, D), nearest first.
+def _nearest(
+    x: torch.Tensor, centroids: torch.Tensor, k: int = 1, c_sq: torch.Tensor | None = None
+):
+    """k nearest centroids of each row of x (M, D), nearest first; ``c_sq`` (C,) are the
+    centroids' squared norms when the caller has them.
 
     Returns (indices (M, k), squared distances (M, k)).
     """
-    c_sq = (centroids * centroids).sum(1)
+    if c_sq is None:
+        c_sq = (centroids * centroids).sum(1)
     index = torch.empty(len(x), k, dtype=torch.long, device=x.device)
     dist = torch.empty(len(x), k, dtype=x.dtype, device=x.device)
     chunk = _chunk_rows(len(centroids))
@@ -57,7 +61,8 @@ class CoarseGroups:
 
     Args:
         centres: (G, D) coarse centres.
-        group_of: (F,) group of each prototype.
+        group_of: (F,) group of each prototype, non-decreasing: the prototypes are stored group
+            by group (as ``grouped_kmeans`` makes them), so that a group's are one slice.
         probes: number of nearest groups whose prototypes a descriptor is compared with.
     """
 
@@ -68,14 +73,15 @@ class CoarseGroups:
     def __post_init__(self) -> None:
         if self.probes < 1:
             raise ValueError(f"probes must be >= 1, got {self.probes}")
+        if bool((self.group_of[1:] < self.group_of[:-1]).any()):
+            raise ValueError("group_of must be non-decreasing: store the prototypes group by group")
         self.probes = min(self.probes, len(self.centres))
-        order = torch.argsort(self.group_of, stable=True)
-        bounds = torch.bincount(self.group_of, minlength=len(self.centres)).cumsum(0)
-        self.members = list(torch.tensor_split(order, bounds[:-1]))
+        sizes = torch.bincount(self.group_of, minlength=len(self.centres))
+        ends = sizes.cumsum(0)
+        self.bounds = [0, *ends.tolist()]  # group g: prototypes bounds[g]:bounds[g + 1]
         # (G, largest group) prototype ids, -1 past a group's end.
-        self.padded = torch.nn.utils.rnn.pad_sequence(
-            self.members, batch_first=True, padding_value=-1
-        )
+        members = torch.arange(int(sizes.max()), device=sizes.device)
+        self.padded = torch.where(members < sizes[:, None], (ends - sizes)[:, None] + members, -1)
 
     def nearest(self, x: torch.Tensor, centroids: torch.Tensor, k: int = 1):
         """k nearest prototypes of each row of x (M, D) among its probed groups, nearest
@@ -83,19 +89,24 @@ class CoarseGroups:
         probed = _nearest(x, self.centres, self.probes)[0]  # (M, P)
         if len(x) < SMALL_BATCH:
             return self._nearest_among_all(x, centroids, probed, k)
-        groups = probed.flatten()  # (M * P,)
-        index = torch.zeros(len(groups), k, dtype=torch.long, device=x.device)
-        dist = torch.full((len(groups), k), torch.inf, dtype=x.dtype, device=x.device)
-        # One block of rows per group: the (row, probe) pairs that probe it.
+        groups = probed.flatten()  # (M * P,) (row, probe) pairs
+        # The pairs sorted by group: each group's rows are one slice, its prototypes another.
         order = torch.argsort(groups, stable=True)
         counts = torch.bincount(groups, minlength=len(self.centres)).tolist()
-        for g, pairs in enumerate(torch.split(order, counts)):
-            members = self.members[g]
-            if len(pairs) == 0 or len(members) == 0:
-                continue
-            kg = min(k, len(members))
-            found, d = _nearest(x[pairs // self.probes], centroids[members], kg)
-            index[pairs, :kg], dist[pairs, :kg] = members[found], d
+        rows, c_sq = x[order // self.probes], (centroids * centroids).sum(1)
+        found = torch.zeros(len(groups), k, dtype=torch.long, device=x.device)
+        near = torch.full((len(groups), k), torch.inf, dtype=x.dtype, device=x.device)
+        start = 0
+        for g, n in enumerate(counts):
+            lo, hi = self.bounds[g], self.bounds[g + 1]
+            if n and hi > lo:
+                end, kg = start + n, min(k, hi - lo)
+                i, d = _nearest(rows[start:end], centroids[lo:hi], kg, c_sq[lo:hi])
+                found[start:end, :kg], near[start:end, :kg] = i + lo, d
+            start += n
+        # Back to (row, probe) order.
+        index = torch.empty_like(found).index_copy_(0, order, found)
+        dist = torch.empty_like(near).index_copy_(0, order, near)
         dist, best = dist.view(len(x), -1).topk(k, largest=False)
         return index.view(len(x), -1).gather(1, best), dist
 
