@@ -45,6 +45,8 @@ class RLVCAgent:
         alpha: significance level of the split t-tests.
         min_count: minimum interactions on each side of a split.
         bonferroni: correct alpha for the number of candidate features (see ``find_splits``).
+        blocked_is_stuck: act on Q solved with blocked moves (the same image again) as
+            dead ends, since the greedy policy would repeat them forever (see ``RLVC``).
         max_stages: stage cap.
         max_episode_steps: exploration episodes are cut after this many steps.
         databases: fractions of the budget collected in successive databases (sum 1), or
@@ -72,6 +74,7 @@ class RLVCAgent:
         alpha: float = 0.05,
         min_count: int = 10,
         bonferroni: bool = False,
+        blocked_is_stuck: bool = False,
         max_stages: int = 300,
         max_episode_steps: int = 50,
         databases: int | Sequence[float] = 1,
@@ -97,6 +100,7 @@ class RLVCAgent:
             min_count,
             bonferroni,
         )
+        self.blocked_is_stuck = blocked_is_stuck
         self.max_stages, self.max_episode_steps = max_stages, max_episode_steps
         if isinstance(databases, int):
             if databases < 1:
@@ -182,6 +186,7 @@ class RLVCAgent:
                     self.alpha,
                     self.min_count,
                     self.bonferroni,
+                    blocked_is_stuck=self.blocked_is_stuck,
                 )
                 fitting = time.perf_counter() - t2
             latest = InteractionDatabase.build(transitions, self.extractor, detected)
@@ -254,6 +259,7 @@ class RLVCAgent:
                     "alpha": self.alpha,
                     "min_count": self.min_count,
                     "bonferroni": self.bonferroni,
+                    "blocked_is_stuck": self.blocked_is_stuck,
                     "max_stages": self.max_stages,
                     "max_episode_steps": self.max_episode_steps,
                     "databases": list(self.databases),

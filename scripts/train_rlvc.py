@@ -41,6 +41,12 @@ def main() -> None:
         "the first is random, later ones are collected epsilon-greedily on the current classes "
         "and added to the earlier ones",
     )
+    parser.add_argument(
+        "--blocked-is-stuck",
+        action=argparse.BooleanOptionalAction,
+        default=False,
+        help="act on Q solved with blocked moves (the same image again) as dead ends",
+    )
     parser.add_argument("--eval-starts", type=int, default=100)
     parser.add_argument("--eval-every", type=int, default=25)
     parser.add_argument("--seed", type=int, default=0)
@@ -59,6 +65,7 @@ def main() -> None:
         args.min_count,
         args.max_stages,
         args.databases,
+        args.blocked_is_stuck,
         args.eval_starts,
         args.eval_every,
         args.seed,

@@ -1,5 +1,7 @@
 """Wrappers and agents: Gymnasium compliance, end-to-end RLVC on a small maze, persistence."""
 
+import json
+
 import gymnasium as gym
 import numpy as np
 import pytest
@@ -10,7 +12,7 @@ from vistask.agents import RLVCAgent, TabularQAgent
 from vistask.envs import MazeOracle, VisualMazeEnv, evaluate_policy, start_positions
 from vistask.features import VisualFeatureExtractor
 from vistask.rlvc import VisualClassifier, collect
-from vistask.train import agent_policy, true_grid_policy
+from vistask.train import agent_policy, train_rlvc, true_grid_policy
 from vistask.wrappers import VisualClasses, VisualFeatures
 
 SMALL = dict(
@@ -173,3 +175,34 @@ def test_later_databases_are_collected_on_the_current_classes_and_kept_or_replac
     assert RLVCAgent(VisualMazeEnv(**SMALL), databases=4).databases == (0.25,) * 4
     with pytest.raises(ValueError, match=">= 1"):
         RLVCAgent(VisualMazeEnv(**SMALL), databases=0)
+
+
+def test_train_rlvc_writes_a_summary_that_its_saved_agent_reproduces(tmp_path):
+    summary = train_rlvc(
+        env_kwargs=SMALL,
+        interactions=2000,
+        n_words=256,
+        vocabulary_groups=8,
+        blocked_is_stuck=True,
+        eval_starts=30,
+        out=tmp_path,
+        progress=False,
+    )
+    on_disk = json.loads((tmp_path / "summary.json").read_text())
+    for key in ("return_ratio", "rlvc_return", "oracle_return", "stages", "classes"):
+        assert on_disk[key] == pytest.approx(summary[key])
+    assert summary["interactions"] == 2000 and summary["vocabulary_size"] == 256
+    assert summary["selected_features"] <= summary["classes"] - 1  # a test per internal node
+    assert summary["return_ratio"] == pytest.approx(
+        summary["rlvc_return"] / summary["oracle_return"]
+    )
+    for picture in ("value_functions.png", "rlvc_policy.png", "oracle_policy.png"):
+        assert (tmp_path / picture).stat().st_size > 0
+    assert any((tmp_path / "tensorboard").iterdir())
+    # The saved agent acts as the one that was scored, from the same starts.
+    env = gym.make("vistask/VisualMaze-v0", **SMALL)
+    agent = RLVCAgent.load(tmp_path / "rlvc_agent.pt", env)
+    assert agent.blocked_is_stuck and agent.rlvc.blocked_is_stuck
+    result = evaluate_policy(env, agent_policy(agent), start_positions(env.unwrapped.geometry, 30))
+    assert result.mean == pytest.approx(summary["rlvc_return"])
+    assert summary["starts_never_exiting"] == int((result.returns == 0).sum())

@@ -144,6 +144,36 @@ def test_value_iteration_matches_a_hand_solved_mdp():
     )
 
 
+@pytest.mark.parametrize("blocked_is_stuck", [False, True])
+def test_a_greedy_action_blocked_on_its_own_image_is_a_dead_end(blocked_is_stuck):
+    # One class (no feature ever present), gamma 0.9. Action 0: 9 blocked moves (the same
+    # image again) and one exit worth 100; action 1: 10 exits worth 20. Counted as the paper's
+    # class MDP, Q0 = 10 + 0.9 * 0.9 * Q0 = 52.6 beats Q1 = 20. But on an image where action 0
+    # is blocked, a greedy policy repeats it forever: with blocked moves bootstrapping nothing,
+    # Q0 = 10 and the policy takes action 1.
+    blocked = torch.arange(9)
+    exits = torch.arange(9, 20)
+    db = InteractionDatabase(
+        presence=torch.zeros(21, 3, dtype=torch.bool),
+        obs=torch.cat([blocked, exits]),
+        actions=torch.tensor([0] * 10 + [1] * 10),
+        rewards=torch.tensor([0.0] * 9 + [100.0] + [20.0] * 10, dtype=torch.float64),
+        next_obs=torch.cat([blocked, torch.full((11,), 20)]),
+        terminal=torch.tensor([False] * 9 + [True] * 11),
+    )
+    rlvc = RLVC(db.n_features, 2, gamma=0.9, blocked_is_stuck=blocked_is_stuck)
+    rlvc.learn(db, progress=False)
+    q0 = 10.0 if blocked_is_stuck else 10.0 / (1 - 0.81)
+    expected = torch.tensor([[q0, 20.0]], dtype=torch.float64)
+    torch.testing.assert_close(rlvc.q, expected)
+    assert rlvc.greedy(torch.zeros(1, 3, dtype=torch.bool)).item() == int(blocked_is_stuck)
+    # The split search reads the paper's TD errors either way.
+    one_class = torch.zeros(20, dtype=torch.long)
+    paper_q = rlvc.solve(db, torch.zeros(21, dtype=torch.long))
+    deltas = td_errors(paper_q, one_class, db.actions, db.rewards, one_class, db.terminal, 0.9)
+    assert rlvc.history[0].mean_abs_td == pytest.approx(float(deltas.abs().mean()))
+
+
 def test_unvisited_actions_are_never_greedy():
     s, a = torch.tensor([0]), torch.tensor([1])
     r, done = torch.tensor([-1.0], dtype=torch.float64), torch.tensor([True])
@@ -291,7 +321,8 @@ def test_learned_q_is_solved_on_the_final_classes(max_stages):
     db = synthetic_chain(n=1000)
     rlvc = RLVC(db.n_features, 2, gamma=0.9).learn(db, max_stages=max_stages, progress=False)
     assert (rlvc.history[-1].splits > 0) == (max_stages == 2)
-    torch.testing.assert_close(rlvc.q, rlvc.solve(db, rlvc.tree.classify(db.presence)))
+    classes = rlvc.tree.classify(db.presence)
+    torch.testing.assert_close(rlvc.q, rlvc.solve(db, classes, rlvc.blocked_is_stuck))
 
 
 def test_rlvc_save_load_round_trip(tmp_path):

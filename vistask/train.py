@@ -66,6 +66,7 @@ def train_rlvc(
     min_count: int = 10,
     max_stages: int = 300,
     databases: int | Sequence[float] = 1,
+    blocked_is_stuck: bool = False,
     eval_starts: int = 100,
     eval_every: int = 25,
     seed: int = 0,
@@ -77,8 +78,8 @@ def train_rlvc(
     Args:
         env_id, env_kwargs: the maze (``gym.make`` arguments).
         interactions: interactions in all (the budget).
-        n_words, vocabulary_groups, alpha, min_count, max_stages, databases: RLVC settings
-            (see ``RLVCAgent``).
+        n_words, vocabulary_groups, alpha, min_count, max_stages, databases,
+            blocked_is_stuck: RLVC settings (see ``RLVCAgent``).
         eval_starts: number of fixed start positions of the evaluation.
         eval_every: evaluate the greedy policy every this many stages (and at the end).
         seed: seeds collection and the vocabulary.
@@ -106,6 +107,7 @@ def train_rlvc(
         min_count=min_count,
         max_stages=max_stages,
         databases=databases,
+        blocked_is_stuck=blocked_is_stuck,
         seed=seed,
     )
     writer = tensorboard(out / "tensorboard")
@@ -119,15 +121,21 @@ def train_rlvc(
                 "rlvc/return_ratio", record.greedy_return / oracle_return, record.stage
             )
 
+    evaluations = []
+
+    def evaluate(a: RLVCAgent) -> float:
+        evaluations.append(evaluate_policy(maze, agent_policy(a), starts))
+        return evaluations[-1].mean
+
     agent.learn(
         interactions,
-        evaluate=lambda a: evaluate_policy(maze, agent_policy(a), starts).mean,
+        evaluate=evaluate,
         eval_every=eval_every,
         progress_bar=progress,
         on_stage=log_stage,
     )
     learned = time.perf_counter()
-    rlvc_return = agent.rlvc.history[-1].greedy_return
+    rlvc_return = evaluations[-1].mean
     # The agent's own interactions, aggregated on true positions instead of visual classes.
     ceiling = true_grid_policy(maze.geometry, agent.database)
     grid_return = evaluate_policy(maze, ceiling, starts).mean
@@ -156,6 +164,7 @@ def train_rlvc(
         "rlvc_return": rlvc_return,
         "oracle_return": oracle_return,
         "true_grid_return_ratio": grid_return / oracle_return,
+        "starts_never_exiting": int((evaluations[-1].returns == 0).sum()),
         "stages": len(rlvc.history),
         "classes": rlvc.n_classes,
         "selected_features": len(rlvc.tree.selected_features),
@@ -163,6 +172,7 @@ def train_rlvc(
         "vocabulary_groups": vocabulary_groups,
         "interactions": agent.num_timesteps,
         "databases": list(agent.databases),
+        "blocked_is_stuck": blocked_is_stuck,
         "seconds": time.perf_counter() - start,
         "learn_seconds": learned - start,
         "seconds_split": {
@@ -185,6 +195,7 @@ def train_rlvc(
             "RLVC mean discounted return": rlvc_return,
             "oracle mean discounted return": oracle_return,
             "same interactions on a true 20x20 grid / oracle": summary["true_grid_return_ratio"],
+            f"starts never reaching an exit (of {len(starts)})": summary["starts_never_exiting"],
             "stages (paper 84)": summary["stages"],
             "visual classes (paper 205)": summary["classes"],
             "selected features (paper 200)": summary["selected_features"],

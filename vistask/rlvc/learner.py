@@ -2,7 +2,8 @@
 
 The stage loop, top to bottom: map interactions to classes, solve Q on the estimated class MDP,
 compute TD errors, find the significant split of every aliased class, split, repeat until no
-class splits or the stage cap.
+class splits or the stage cap. The policy acts on Q solved on the final classes (optionally
+with blocked moves as dead ends, ``blocked_is_stuck``).
 """
 
 from __future__ import annotations
@@ -76,6 +77,10 @@ class RLVC:
         bonferroni: correct alpha for the number of candidate splits (see ``find_splits``).
         max_splits_per_stage: split at most this many classes per stage, best first (None: all
             aliased classes, as in the paper).
+        blocked_is_stuck: solve the Q the policy acts on (``q``, ``greedy``) with blocked
+            interactions, whose next percept is the very same image, bootstrapping nothing:
+            a reactive, deterministic policy that takes a blocked action on an image takes it
+            on the same image again, forever. The split search keeps the paper's TD errors.
     """
 
     n_features: int
@@ -85,6 +90,7 @@ class RLVC:
     min_count: int = 10
     bonferroni: bool = True
     max_splits_per_stage: int | None = None
+    blocked_is_stuck: bool = False
     tree: ClassTree = field(init=False)
     q: torch.Tensor = field(init=False)
     history: list[StageRecord] = field(default_factory=list, init=False)
@@ -100,20 +106,30 @@ class RLVC:
     def n_classes(self) -> int:
         return self.tree.n_classes
 
-    def solve(self, db: InteractionDatabase, classes: torch.Tensor) -> torch.Tensor:
-        """Q (S, A) of the current classes on ``db``; ``classes`` (M,) class of each percept."""
+    def solve(
+        self, db: InteractionDatabase, classes: torch.Tensor, blocked_is_stuck: bool = False
+    ) -> torch.Tensor:
+        """Q (S, A) of the current classes on ``db``; ``classes`` (M,) class of each percept.
+        With ``blocked_is_stuck``, blocked interactions (x_{t+1} the same image as x_t)
+        bootstrap nothing, like terminal ones."""
         if int(db.actions.max()) >= self.n_actions or int(db.actions.min()) < 0:
             raise ValueError(f"database holds action ids outside 0..{self.n_actions - 1}")
+        no_bootstrap = db.terminal | (db.obs == db.next_obs) if blocked_is_stuck else db.terminal
         mdp = estimate_mdp(
             classes[db.obs],
             db.actions,
             db.rewards,
             classes[db.next_obs],
-            db.terminal,
+            no_bootstrap,
             self.n_classes,
             self.n_actions,
         )
         return value_iteration(mdp, self.gamma)
+
+    def _solve_policy(self, db: InteractionDatabase, classes: torch.Tensor) -> None:
+        start = time.perf_counter()
+        self.q = self.solve(db, classes, self.blocked_is_stuck)
+        self.timing.solve += time.perf_counter() - start
 
     def learn(
         self,
@@ -146,13 +162,11 @@ class RLVC:
         rows, features = db.interaction_features()
         classes = self.tree.classify(db.presence)
         bar = tqdm(range(max_stages), desc="RLVC stages", disable=not progress, leave=False)
-        stale = True  # Q is not yet solved on the current classes of this database
         for _ in bar:
             start = time.perf_counter()
-            if stale:  # not when an evaluation already solved the current classes
-                self.q = self.solve(db, classes)
+            q = self.solve(db, classes)  # the paper's Q, whose TD errors reveal aliasing
             s, s_next = classes[db.obs], classes[db.next_obs]
-            deltas = td_errors(self.q, s, db.actions, db.rewards, s_next, db.terminal, self.gamma)
+            deltas = td_errors(q, s, db.actions, db.rewards, s_next, db.terminal, self.gamma)
             solved = time.perf_counter()
             splits = find_splits(
                 rows,
@@ -172,7 +186,6 @@ class RLVC:
                 # Incremental reclassification: only percepts of the split class can move.
                 moved = (classes == split.state) & db.presence[:, split.feature]
                 classes[moved] = new_class
-            stale = bool(splits)
             done = time.perf_counter()
             self.timing.solve += solved - start
             self.timing.split += done - solved
@@ -187,8 +200,7 @@ class RLVC:
             )
             last = not splits or record.stage + 1 == max_stages
             if evaluate is not None and (last or (record.stage + 1) % eval_every == 0):
-                if stale:
-                    self.q, stale = self.solve(db, classes), False
+                self._solve_policy(db, classes)
                 t = time.perf_counter()
                 record.greedy_return = float(evaluate(self))
                 self.timing.evaluate += time.perf_counter() - t
@@ -198,8 +210,7 @@ class RLVC:
                 on_stage(record)
             if not splits:
                 break
-        if stale:
-            self.q = self.solve(db, classes)
+        self._solve_policy(db, classes)
         return self
 
     def values(self) -> torch.Tensor:
@@ -220,6 +231,7 @@ class RLVC:
                 "min_count": self.min_count,
                 "bonferroni": self.bonferroni,
                 "max_splits_per_stage": self.max_splits_per_stage,
+                "blocked_is_stuck": self.blocked_is_stuck,
             },
             "tree": self.tree.state_dict(),
             "q": self.q,
