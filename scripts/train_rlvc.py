@@ -4,6 +4,7 @@ python scripts/train_rlvc.py                     # default VisualMaze-v0, 10,000
 python scripts/train_rlvc.py --interactions 5000 --env-kwargs '{"step": 0.08}'
 python scripts/train_rlvc.py --databases 0.5,0.25,0.25   # later databases on the classes
 python scripts/train_rlvc.py --interactions 30000 --databases 3   # 3 databases of 10,000
+python scripts/train_rlvc.py --blocked-is-stuck   # act as if blocked moves were dead ends
 """
 
 import argparse
