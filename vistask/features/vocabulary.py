@@ -83,17 +83,22 @@ class CoarseGroups:
         members = torch.arange(int(sizes.max()), device=sizes.device)
         self.padded = torch.where(members < sizes[:, None], (ends - sizes)[:, None] + members, -1)
 
-    def nearest(self, x: torch.Tensor, centroids: torch.Tensor, k: int = 1):
+    def nearest(
+        self, x: torch.Tensor, centroids: torch.Tensor, k: int = 1, c_sq: torch.Tensor | None = None
+    ):
         """k nearest prototypes of each row of x (M, D) among its probed groups, nearest
-        first: (indices (M, k), squared distances (M, k)), like ``_nearest``."""
+        first: (indices (M, k), squared distances (M, k)), like ``_nearest``; ``c_sq`` (F,)
+        are the prototypes' squared norms when the caller has them."""
+        if c_sq is None:
+            c_sq = (centroids * centroids).sum(1)
         probed = _nearest(x, self.centres, self.probes)[0]  # (M, P)
         if len(x) < SMALL_BATCH:
-            return self._nearest_among_all(x, centroids, probed, k)
+            return self._nearest_among_all(x, centroids, c_sq, probed, k)
         groups = probed.flatten()  # (M * P,) (row, probe) pairs
         # The pairs sorted by group: each group's rows are one slice, its prototypes another.
         order = torch.argsort(groups, stable=True)
         counts = torch.bincount(groups, minlength=len(self.centres)).tolist()
-        rows, c_sq = x[order // self.probes], (centroids * centroids).sum(1)
+        rows = x[order // self.probes]
         found = torch.zeros(len(groups), k, dtype=torch.long, device=x.device)
         near = torch.full((len(groups), k), torch.inf, dtype=x.dtype, device=x.device)
         start = 0
@@ -110,11 +115,11 @@ class CoarseGroups:
         dist, best = dist.view(len(x), -1).topk(k, largest=False)
         return index.view(len(x), -1).gather(1, best), dist
 
-    def _nearest_among_all(self, x, centroids, probed, k):
+    def _nearest_among_all(self, x, centroids, c_sq, probed, k):
         """The same search for a few descriptors (one percept, as a control loop has): one
         product with every prototype, then each row's probed groups, beats a loop over groups."""
         columns = self.padded[probed].flatten(1)  # (M, P * largest group)
-        d = torch.addmm((centroids * centroids).sum(1), x, centroids.T, alpha=-2.0)
+        d = torch.addmm(c_sq, x, centroids.T, alpha=-2.0)
         d = d.gather(1, columns.clamp_min(0)).masked_fill_(columns < 0, torch.inf)
         if d.shape[1] < k:  # tiny vocabularies: fewer candidates than neighbours asked for
             d = torch.nn.functional.pad(d, (0, k - d.shape[1]), value=torch.inf)
@@ -250,6 +255,8 @@ class VisualFeatureExtractor:
             )
         self.keypoints = keypoints
         self.centroids = centroids.float().contiguous()
+        # Every match needs the prototypes' squared norms; they are fixed, so computed once.
+        self._centroid_sq = (self.centroids * self.centroids).sum(1)
         self.groups = groups
         self.max_distance = max_distance
         if soft_ratio < 1:
@@ -337,8 +344,8 @@ class VisualFeatureExtractor:
         """k nearest prototypes of descriptors x (M, D): (indices (M, k), squared distances)."""
         k = min(k, self.n_features)
         if self.groups is None:
-            return _nearest(x, self.centroids, k)
-        return self.groups.nearest(x, self.centroids, k)
+            return _nearest(x, self.centroids, k, self._centroid_sq)
+        return self.groups.nearest(x, self.centroids, k, self._centroid_sq)
 
     def words(self, detected: Sequence[Keypoints]) -> list[tuple[np.ndarray, np.ndarray]]:
         """Per image, (keypoint index (P,), feature id (P,)) pairs: every keypoint's words."""
