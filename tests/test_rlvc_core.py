@@ -199,6 +199,16 @@ def test_batch_classification_equals_per_sample_classification():
     assert set(batch.tolist()) <= set(range(tree.n_classes))
     restored = ClassTree.from_state_dict(tree.state_dict())
     assert torch.equal(restored.classify(presence), batch)
+    # A walk down the tree, row by row, from its node lists.
+    walked = []
+    for row in presence.tolist():
+        node = 0
+        while tree.feature[node] >= 0:
+            node = tree.present[node] if row[tree.feature[node]] else tree.absent[node]
+        walked.append(tree.leaf_class[node])
+    assert batch.tolist() == walked
+    restored.numpy_on_cpu = False  # the torch loop that other devices run
+    assert torch.equal(restored.classify(presence), batch)
 
 
 def test_split_keeps_class_ids_stable():
