@@ -5,6 +5,7 @@ python scripts/train_rlvc.py --interactions 5000 --env-kwargs '{"step": 0.08}'
 python scripts/train_rlvc.py --databases 0.5,0.25,0.25   # later databases on the classes
 python scripts/train_rlvc.py --interactions 30000 --databases 3   # 3 databases of 10,000
 python scripts/train_rlvc.py --blocked-is-stuck   # act as if blocked moves were dead ends
+python scripts/train_rlvc.py --max-keypoints 24   # faster SIFT: the 24 strongest keypoints
 """
 
 import argparse
@@ -48,6 +49,12 @@ def main() -> None:
         default=False,
         help="act on Q solved with blocked moves (the same image again) as dead ends",
     )
+    parser.add_argument(
+        "--max-keypoints",
+        type=int,
+        default=0,
+        help="SIFT keypoints kept per percept, strongest first (0: all); fewer is faster",
+    )
     parser.add_argument("--eval-starts", type=int, default=100)
     parser.add_argument("--eval-every", type=int, default=25)
     parser.add_argument("--seed", type=int, default=0)
@@ -67,6 +74,7 @@ def main() -> None:
         args.max_stages,
         args.databases,
         args.blocked_is_stuck,
+        args.max_keypoints,
         args.eval_starts,
         args.eval_every,
         args.seed,

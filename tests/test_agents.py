@@ -184,6 +184,7 @@ def test_train_rlvc_writes_a_summary_that_its_saved_agent_reproduces(tmp_path):
         n_words=256,
         vocabulary_groups=8,
         blocked_is_stuck=True,
+        max_keypoints=20,
         eval_starts=30,
         out=tmp_path,
         progress=False,
@@ -203,6 +204,7 @@ def test_train_rlvc_writes_a_summary_that_its_saved_agent_reproduces(tmp_path):
     env = gym.make("vistask/VisualMaze-v0", **SMALL)
     agent = RLVCAgent.load(tmp_path / "rlvc_agent.pt", env)
     assert agent.blocked_is_stuck and agent.rlvc.blocked_is_stuck
+    assert agent.extractor.keypoints.max_keypoints == summary["max_keypoints"] == 20
     result = evaluate_policy(env, agent_policy(agent), start_positions(env.unwrapped.geometry, 30))
     assert result.mean == pytest.approx(summary["rlvc_return"])
     assert summary["starts_never_exiting"] == int((result.returns == 0).sum())

@@ -22,6 +22,7 @@ from vistask.envs import (
 )
 from vistask.envs.maze_oracle import Policy, grid_cells
 from vistask.envs.maze_plots import percept_grid, plot_policy, plot_values
+from vistask.features import SiftExtractor
 from vistask.logging import print_table, run_dir, tensorboard, write_summary
 from vistask.rlvc import InteractionDatabase, Transitions
 from vistask.rlvc.solver import estimate_mdp, value_iteration
@@ -67,6 +68,7 @@ def train_rlvc(
     max_stages: int = 300,
     databases: int | Sequence[float] = 1,
     blocked_is_stuck: bool = False,
+    max_keypoints: int = 0,
     eval_starts: int = 100,
     eval_every: int = 25,
     seed: int = 0,
@@ -80,6 +82,8 @@ def train_rlvc(
         interactions: interactions in all (the budget).
         n_words, vocabulary_groups, alpha, min_count, max_stages, databases,
             blocked_is_stuck: RLVC settings (see ``RLVCAgent``).
+        max_keypoints: SIFT keypoints kept per percept, strongest first (0: all); fewer
+            make extraction faster.
         eval_starts: number of fixed start positions of the evaluation.
         eval_every: evaluate the greedy policy every this many stages (and at the end).
         seed: seeds collection and the vocabulary.
@@ -108,6 +112,7 @@ def train_rlvc(
         max_stages=max_stages,
         databases=databases,
         blocked_is_stuck=blocked_is_stuck,
+        keypoints=SiftExtractor(max_keypoints=max_keypoints),
         seed=seed,
     )
     writer = tensorboard(out / "tensorboard")
@@ -173,6 +178,7 @@ def train_rlvc(
         "interactions": agent.num_timesteps,
         "databases": list(agent.databases),
         "blocked_is_stuck": blocked_is_stuck,
+        "max_keypoints": max_keypoints,
         "seconds": time.perf_counter() - start,
         "learn_seconds": learned - start,
         "seconds_split": {
