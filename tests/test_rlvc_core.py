@@ -335,6 +335,27 @@ def test_learned_q_is_solved_on_the_final_classes(max_stages):
     torch.testing.assert_close(rlvc.q, rlvc.solve(db, classes, rlvc.blocked_is_stuck))
 
 
+def test_a_later_learn_call_evaluates_its_own_last_stage():
+    db = synthetic_chain(n=1000)
+    rlvc = RLVC(db.n_features, 2, gamma=0.9)
+    evaluated = []
+    for _ in range(2):  # as RLVCAgent continues on a later database, each call capped
+        rlvc.learn(
+            db,
+            max_stages=2,
+            evaluate=lambda r: evaluated.append(r.n_classes) or 0.0,
+            eval_every=100,
+            progress=False,
+        )
+    assert len(rlvc.history) == 4 and rlvc.history[-1].splits > 0  # cut while splitting
+    assert [r.stage for r in rlvc.history if r.greedy_return is not None] == [1, 3]
+    assert evaluated[-1] == rlvc.n_classes
+    with pytest.raises(ValueError, match="max_stages"):
+        rlvc.learn(db, max_stages=0, progress=False)
+    classes = rlvc.tree.classify(db.presence)
+    torch.testing.assert_close(rlvc.q, rlvc.solve(db, classes, rlvc.blocked_is_stuck))
+
+
 def test_rlvc_save_load_round_trip(tmp_path):
     db = synthetic_chain(n=1000)
     rlvc = RLVC(db.n_features, 2, gamma=0.9).learn(db, progress=False)

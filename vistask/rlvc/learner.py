@@ -155,6 +155,8 @@ class RLVC:
             raise ValueError(
                 f"database has {db.n_features} features, the learner {self.n_features}"
             )
+        if max_stages < 1:
+            raise ValueError(f"max_stages must be >= 1, got {max_stages}")
         with single_thread():
             return self._learn(db, max_stages, evaluate, eval_every, progress, on_stage)
 
@@ -162,7 +164,7 @@ class RLVC:
         rows, features = db.interaction_features()
         classes = self.tree.classify(db.presence)
         bar = tqdm(range(max_stages), desc="RLVC stages", disable=not progress, leave=False)
-        for _ in bar:
+        for i in bar:
             start = time.perf_counter()
             q = self.solve(db, classes)  # the paper's Q, whose TD errors reveal aliasing
             s, s_next = classes[db.obs], classes[db.next_obs]
@@ -198,9 +200,12 @@ class RLVC:
                 solve_seconds=solved - start,
                 split_seconds=done - solved,
             )
-            last = not splits or record.stage + 1 == max_stages
-            if evaluate is not None and (last or (record.stage + 1) % eval_every == 0):
+            # The cap counts this call's stages; evaluations follow the stage count of all calls.
+            last = not splits or i + 1 == max_stages
+            evaluating = evaluate is not None and (last or (record.stage + 1) % eval_every == 0)
+            if last or evaluating:
                 self._solve_policy(db, classes)
+            if evaluating:
                 t = time.perf_counter()
                 record.greedy_return = float(evaluate(self))
                 self.timing.evaluate += time.perf_counter() - t
@@ -210,7 +215,6 @@ class RLVC:
                 on_stage(record)
             if not splits:
                 break
-        self._solve_policy(db, classes)
         return self
 
     def values(self) -> torch.Tensor:
