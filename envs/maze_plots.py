@@ -27,8 +27,9 @@ def percept_grid(
     """Evaluate ``fn`` (a batch of percepts -> (n,) values) at every grid cell: (grid, grid).
     Cells that are not free (obstacles, exits) are NaN."""
     points = grid_positions(env, grid)
-    values = np.asarray(fn([env.percept_at(p) for p in points]), dtype=np.float64)
-    values[~env.geometry.is_free(points)] = np.nan
+    free = env.geometry.is_free(points)
+    values = np.full(len(points), np.nan)
+    values[free] = np.asarray(fn([env.percept_at(p) for p in points[free]]), dtype=np.float64)
     return values.reshape(grid, grid)
 
 

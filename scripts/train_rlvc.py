@@ -56,7 +56,7 @@ def main() -> None:
         help="SIFT keypoints kept per percept, strongest first (0: all); fewer is faster",
     )
     parser.add_argument("--eval-starts", type=int, default=100)
-    parser.add_argument("--eval-every", type=int, default=25)
+    parser.add_argument("--eval-every", type=int, default=50)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument(
         "--out", default=None, help="run directory (default runs/train_rlvc-<time>)"

@@ -39,10 +39,16 @@ def test_color_descriptors_append_chromaticity(percepts):
 
 def test_batch_extraction_equals_one_by_one(percepts):
     extractor = SiftExtractor(threads=2)
-    batch = extractor.batch(percepts[:40])
-    for image, kps in zip(percepts[:40], batch, strict=True):
+    images = percepts[:41]  # shares of unequal size
+    batch = extractor.batch(images)
+    for image, kps in zip(images, batch, strict=True):
         single = extractor(image)
         np.testing.assert_array_equal(single.descriptors, kps.descriptors)
+    # The pool is kept for the next batch, and left out of pickles (subprocess vector envs).
+    again = pickle.loads(pickle.dumps(extractor)).batch(images[::-1])
+    for kps, other in zip(batch, reversed(again), strict=True):
+        np.testing.assert_array_equal(kps.xy, other.xy)
+        np.testing.assert_array_equal(kps.descriptors, other.descriptors)
 
 
 def test_the_same_image_always_gives_the_same_features(extractor, percepts):

@@ -174,6 +174,19 @@ def test_a_greedy_action_blocked_on_its_own_image_is_a_dead_end(blocked_is_stuck
     assert rlvc.history[0].mean_abs_td == pytest.approx(float(deltas.abs().mean()))
 
 
+def test_estimated_transitions_are_the_counted_frequencies():
+    rng = np.random.default_rng(3)
+    n, n_states, n_actions = 400, 6, 3
+    s, a, s2 = (torch.from_numpy(rng.integers(k, size=n)) for k in (n_states, n_actions, n_states))
+    done = torch.from_numpy(rng.random(n) < 0.2)
+    mdp = estimate_mdp(s, a, torch.zeros(n, dtype=torch.float64), s2, done, n_states, n_actions)
+    counts = np.zeros((n_states, n_actions, n_states))
+    np.add.at(counts, (s[~done].numpy(), a[~done].numpy(), s2[~done].numpy()), 1)
+    visits = np.bincount((s * n_actions + a).numpy(), minlength=n_states * n_actions)
+    expected = counts / np.maximum(visits.reshape(n_states, n_actions, 1), 1)
+    np.testing.assert_allclose(mdp.transitions.to_dense().numpy(), expected)
+
+
 def test_unvisited_actions_are_never_greedy():
     s, a = torch.tensor([0]), torch.tensor([1])
     r, done = torch.tensor([-1.0], dtype=torch.float64), torch.tensor([True])

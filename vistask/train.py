@@ -70,7 +70,7 @@ def train_rlvc(
     blocked_is_stuck: bool = False,
     max_keypoints: int = 0,
     eval_starts: int = 100,
-    eval_every: int = 25,
+    eval_every: int = 50,
     seed: int = 0,
     out: str | Path | None = None,
     progress: bool = True,

@@ -18,9 +18,10 @@ class ClassMDP:
     Attributes:
         counts: (S, A) visits n(s, a).
         rewards: (S, A) mean reward R^(s, a) (0 where unvisited).
-        transitions: (S, A, S) T^(s, a, s') = n(s, a, s') / n(s, a) over non-terminal
+        transitions: sparse (S, A, S) T^(s, a, s') = n(s, a, s') / n(s, a) over non-terminal
             successors: the probability mass of terminal successors is missing, so that they
-            bootstrap nothing.
+            bootstrap nothing. Sparse because each interaction adds at most one entry: a dense
+            table is S x A x S (32 MB at a thousand classes, rebuilt every stage).
     """
 
     counts: torch.Tensor
@@ -48,15 +49,20 @@ def estimate_mdp(
         0, sa, rewards.double()
     )
     live = ~terminal
-    sas = sa[live] * n_states + next_states[live]
-    next_counts = torch.bincount(sas, minlength=n_states * n_actions * n_states).double()
+    sas, next_counts = torch.unique(sa[live] * n_states + next_states[live], return_counts=True)
+    origin, successor = sas // n_states, sas % n_states
     safe = counts.clamp_min(1)
+    transitions = torch.sparse_coo_tensor(
+        torch.stack([origin // n_actions, origin % n_actions, successor]),
+        next_counts.double() / safe[origin],
+        (n_states, n_actions, n_states),
+        is_coalesced=True,  # torch.unique sorted the (s, a, s') keys
+        check_invariants=False,
+    )
     return ClassMDP(
         counts=counts.view(n_states, n_actions),
         rewards=(reward_sum / safe).view(n_states, n_actions),
-        transitions=(next_counts.view(-1, n_states) / safe[:, None]).view(
-            n_states, n_actions, n_states
-        ),
+        transitions=transitions,
     )
 
 
@@ -70,11 +76,9 @@ def value_iteration(
         raise ValueError(f"gamma must be in [0, 1), got {gamma}")
     visited = mdp.counts > 0
     n_states, n_actions = mdp.counts.shape
-    # T is as sparse as the data (at most one successor class per interaction): iterate over
-    # its nonzero entries, not over the dense (S * A, S) matrix.
-    t = mdp.transitions.reshape(n_states * n_actions, n_states)
-    sa, successor = t.nonzero(as_tuple=True)
-    p = t[sa, successor]
+    state, action, successor = mdp.transitions.indices()
+    sa = state * n_actions + action
+    p = mdp.transitions.values()
     r = mdp.rewards.reshape(-1)
     v = torch.zeros(n_states, dtype=torch.float64)
     for _ in range(max_iters):
