@@ -13,12 +13,19 @@ from vistask.envs.maze_oracle import (
     evaluate_policy,
     start_positions,
 )
-from vistask.envs.visual_maze import ACTION_NAMES, MazeGeometry, VisualMazeEnv, draw_maze
+from vistask.envs.visual_maze import (
+    ACTION_NAMES,
+    MazeGeometry,
+    VisualMazeEnv,
+    VisualMazeVectorEnv,
+    draw_maze,
+)
 
 if "vistask/VisualMaze-v0" not in registry:
     register(
         id="vistask/VisualMaze-v0",
         entry_point="vistask.envs.visual_maze:VisualMazeEnv",
+        vector_entry_point="vistask.envs.visual_maze:VisualMazeVectorEnv",
         max_episode_steps=100,
     )
 if "vistask/GraspTrial-v0" not in registry:
@@ -30,6 +37,7 @@ __all__ = [
     "MazeGeometry",
     "MazeOracle",
     "VisualMazeEnv",
+    "VisualMazeVectorEnv",
     "draw_maze",
     "evaluate_policy",
     "start_positions",

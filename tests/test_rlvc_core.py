@@ -6,6 +6,7 @@ import pytest
 import torch
 
 import vistask  # noqa: F401  (registers the maze)
+from vistask.envs import VisualMazeVectorEnv
 from vistask.rlvc import (
     RLVC,
     ClassTree,
@@ -15,6 +16,7 @@ from vistask.rlvc import (
     find_splits,
     td_errors,
     value_iteration,
+    vector_copies,
 )
 
 
@@ -283,6 +285,22 @@ def test_side_by_side_episodes_are_seeded_and_stay_linked():
     # Each episode continues from its own last view: all but the episodes' ends recur as x_t.
     ends = t.terminal | ~np.isin(t.next_obs, t.obs)
     assert ends.sum() <= 600 // 30 + 4 + t.terminal.sum()
+
+
+def test_collect_steps_the_maze_as_one_batch_unless_other_wrappers_surround_it():
+    plain = gym.make("vistask/VisualMaze-v0")
+    wrapped = gym.wrappers.RecordEpisodeStatistics(gym.make("vistask/VisualMaze-v0"))
+    assert isinstance(vector_copies(plain, 3), VisualMazeVectorEnv)
+    assert vector_copies(plain, 3).max_episode_steps == plain.spec.max_episode_steps
+    assert isinstance(vector_copies(wrapped, 3), gym.vector.SyncVectorEnv)
+    # Both give the same interactions: the batch reproduces separate seeded envs.
+    batched, one_by_one = (
+        collect(env, 500, max_episode_steps=20, seed=2, max_blocked=2, n_envs=5)
+        for env in (plain, wrapped)
+    )
+    for key in ("obs", "actions", "rewards", "next_obs", "terminal", "positions"):
+        np.testing.assert_array_equal(getattr(batched, key), getattr(one_by_one, key))
+    np.testing.assert_array_equal(np.stack(batched.percepts), np.stack(one_by_one.percepts))
 
 
 def test_concatenated_databases_keep_each_interaction_linked_to_its_percepts():

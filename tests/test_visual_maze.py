@@ -6,7 +6,7 @@ import pytest
 from gymnasium.utils.env_checker import check_env
 
 import vistask.envs  # noqa: F401  (registers the environments)
-from vistask.envs import MazeGeometry, VisualMazeEnv
+from vistask.envs import MazeGeometry, VisualMazeEnv, VisualMazeVectorEnv
 from vistask.envs.tapestry import make_tapestry
 
 OPEN = MazeGeometry(obstacles=(), exits=((0.9, 0.9, 1.0, 1.0),))
@@ -141,3 +141,48 @@ def test_start_position_must_be_free():
     env = VisualMazeEnv()
     with pytest.raises(ValueError, match="not a free"):
         env.reset(options={"position": (0.33, 0.2)})  # inside the first wall
+
+
+def test_vector_env_gives_the_episodes_of_separate_seeded_envs():
+    n, kwargs = 6, {"step": 0.15, "max_episode_steps": 7}
+    batch = gym.make_vec(
+        "vistask/VisualMaze-v0", num_envs=n, vectorization_mode="vector_entry_point", **kwargs
+    )
+    assert isinstance(batch.unwrapped, VisualMazeVectorEnv)
+    single = gym.vector.SyncVectorEnv(
+        [lambda: gym.make("vistask/VisualMaze-v0", **kwargs)] * n,
+        autoreset_mode=gym.vector.AutoresetMode.DISABLED,
+    )
+    rng = np.random.default_rng(0)
+    views, info = batch.reset(seed=3)
+    expected, expected_info = single.reset(seed=3)
+    np.testing.assert_array_equal(info["position"], expected_info["position"])
+    ended = 0
+    for _ in range(60):
+        np.testing.assert_array_equal(views, expected)
+        actions = rng.integers(4, size=n)
+        views, rewards, terminated, truncated, info = batch.step(actions)
+        expected, *outcome, expected_info = single.step(actions)
+        for got, want in zip((rewards, terminated, truncated), outcome, strict=True):
+            np.testing.assert_array_equal(got, want)
+        np.testing.assert_array_equal(info["position"], expected_info["position"])
+        done = terminated | truncated
+        if done.any():  # only the ended copies restart, each from its own generator
+            ended += done.sum()
+            views, info = batch.reset(options={"reset_mask": done})
+            expected, expected_info = single.reset(options={"reset_mask": done})
+            np.testing.assert_array_equal(info["_position"], done)
+            np.testing.assert_array_equal(info["position"][done], expected_info["position"][done])
+    assert ended > n  # episodes were truncated and terminated along the way
+
+
+def test_vector_env_rejects_bad_actions_and_masks():
+    batch = VisualMazeVectorEnv(num_envs=2)
+    with pytest.raises(RuntimeError, match="reset"):
+        batch.step(np.array([0, 1]))
+    batch.reset(seed=0)
+    for actions in (np.array([0]), np.array([0, 4]), np.array([0.0, 1.0])):
+        with pytest.raises(ValueError, match="2 integer actions"):
+            batch.step(actions)
+    with pytest.raises(ValueError, match="reset_mask"):
+        batch.reset(options={"reset_mask": np.array([1, 0])})

@@ -7,6 +7,7 @@ from vistask.rlvc.database import (
     check_image_env,
     collect,
     random_policy,
+    vector_copies,
 )
 from vistask.rlvc.learner import RLVC, StageRecord
 from vistask.rlvc.solver import ClassMDP, estimate_mdp, state_values, td_errors, value_iteration
@@ -30,4 +31,5 @@ __all__ = [
     "state_values",
     "td_errors",
     "value_iteration",
+    "vector_copies",
 ]

@@ -55,6 +55,24 @@ def random_policy(n_actions: int) -> ExplorationPolicy:
     return lambda observations, rng: rng.integers(n_actions, size=len(observations))
 
 
+def vector_copies(env: gym.Env, n_envs: int) -> gym.vector.VectorEnv:
+    """``n_envs`` copies of ``env`` as one vector env without autoreset.
+
+    An env whose unwrapped class steps copies of itself as one batch (``vector_copies``, as the
+    visual maze does) gets those, with ``gym.make``'s time limit, unless other wrappers surround
+    it (their effect would be lost); any other env is deep-copied into a ``SyncVectorEnv``.
+    """
+    inner, spec = env.unwrapped, env.spec
+    only_make_wrappers = env is inner or (spec is not None and not spec.additional_wrappers)
+    if only_make_wrappers and hasattr(inner, "vector_copies"):
+        limit = None if env is inner or spec is None else spec.max_episode_steps
+        return inner.vector_copies(n_envs, limit)
+    copies = [env] + [copy.deepcopy(env) for _ in range(n_envs - 1)]
+    return gym.vector.SyncVectorEnv(
+        [lambda e=e: e for e in copies], autoreset_mode=gym.vector.AutoresetMode.DISABLED
+    )
+
+
 def collect(
     env: gym.Env,
     n: int,
@@ -75,8 +93,8 @@ def collect(
         max_blocked: cut an episode after this many blocked moves in a row (the view did not
             change), so that a greedy policy stuck against a wall does not fill the database
             with copies of one interaction (None: never).
-        n_envs: episodes run side by side on deep copies of ``env``, so that the policy sees
-            batches of ``n_envs`` views.
+        n_envs: episodes run side by side on copies of ``env`` (``vector_copies``), so that the
+            policy sees batches of ``n_envs`` views.
     """
     check_image_env(env)
     if n < 1:
@@ -85,43 +103,42 @@ def collect(
         raise ValueError(f"n_envs must be >= 1, got {n_envs}")
     rng = np.random.default_rng(seed)
     policy = policy or random_policy(int(env.action_space.n))
-    envs = [env] + [copy.deepcopy(env) for _ in range(n_envs - 1)]
+    envs = vector_copies(env, n_envs)
     percepts: list[np.ndarray] = []
     positions: list[np.ndarray] = []
     obs_i, act, rew, next_i, term = [], [], [], [], []
 
-    def add(obs: np.ndarray, info: dict) -> int:
+    def add(obs: np.ndarray, infos: dict, i: int) -> int:
         percepts.append(obs)
-        if "position" in info:
-            positions.append(np.asarray(info["position"]))
+        if "position" in infos:
+            positions.append(np.asarray(infos["position"][i]))
         return len(percepts) - 1
 
-    # Per env copy: its view, the view's percept index, steps and blocked moves in a row.
-    views, current, steps, blocked = [None] * n_envs, [0] * n_envs, [0] * n_envs, [0] * n_envs
-
-    def start(i: int, first: bool) -> None:
-        views[i], info = envs[i].reset(seed=seed + i if first else None)
-        current[i], steps[i], blocked[i] = add(views[i], info), 0, 0
-
-    for i in range(n_envs):
-        start(i, first=True)
+    # Per env copy: the percept index of its view, steps and blocked moves in a row.
+    views, infos = envs.reset(seed=[seed + i for i in range(n_envs)])
+    current = [add(views[i], infos, i) for i in range(n_envs)]
+    steps, blocked = np.zeros(n_envs, dtype=int), np.zeros(n_envs, dtype=int)
     while len(act) < n:
-        actions = policy(np.stack(views), rng)
-        for i, action in enumerate(actions[: n - len(act)]):
-            obs, reward, terminated, truncated, info = envs[i].step(int(action))
-            # A blocked move shows the same view again: store (and later extract) it once.
-            same = np.array_equal(obs, views[i])
-            following = current[i] if same else add(obs, info)
+        actions = np.asarray(policy(views, rng))
+        obs, rewards, terminated, truncated, infos = envs.step(actions)
+        # A blocked move shows the same view again: store (and later extract) it once.
+        same = (obs == views).reshape(n_envs, -1).all(axis=1)
+        for i in range(min(n_envs, n - len(act))):  # the last round may need fewer
+            following = current[i] if same[i] else add(obs[i], infos, i)
             obs_i.append(current[i])
-            act.append(int(action))
-            rew.append(reward)
+            act.append(int(actions[i]))
+            rew.append(float(rewards[i]))
             next_i.append(following)
-            term.append(terminated)
-            views[i], current[i] = obs, following
-            steps[i], blocked[i] = steps[i] + 1, blocked[i] + 1 if same else 0
-            ended = terminated or truncated or steps[i] == max_episode_steps
-            if (ended or blocked[i] == max_blocked) and len(act) < n:
-                start(i, first=False)
+            term.append(bool(terminated[i]))
+            current[i] = following
+        steps, blocked = steps + 1, np.where(same, blocked + 1, 0)
+        ended = terminated | truncated | (steps == max_episode_steps) | (blocked == max_blocked)
+        views = obs
+        if ended.any() and len(act) < n:
+            views, infos = envs.reset(options={"reset_mask": ended})
+            for i in np.flatnonzero(ended):
+                current[i] = add(views[i], infos, i)
+            steps[ended], blocked[ended] = 0, 0
     return Transitions(
         percepts,
         np.asarray(obs_i),
