@@ -82,7 +82,7 @@ class RLVCAgent:
         refresh_every: int = 20,
         epsilon: float = 0.1,
         max_blocked: int | None = 2,
-        n_envs: int = 64,
+        n_envs: int = 128,
         gamma: float | None = None,
         keypoints: SiftExtractor | None = None,
         soft_ratio: float = 1.0,

@@ -1,11 +1,11 @@
 """Train RLVC on an image maze and compare its greedy policy with the oracle's.
 
-python scripts/train_rlvc.py                     # default VisualMaze-v0, 10,000 interactions
-python scripts/train_rlvc.py --interactions 5000 --env-kwargs '{"step": 0.08}'
-python scripts/train_rlvc.py --databases 0.5,0.25,0.25   # later databases on the classes
-python scripts/train_rlvc.py --interactions 30000 --databases 3   # 3 databases of 10,000
+python scripts/train_rlvc.py          # VisualMaze-v0, the paper's protocol: 3 databases of 10,000
+python scripts/train_rlvc.py --interactions 10000 --databases 1   # one random database
+python scripts/train_rlvc.py --databases 0.5,0.25,0.25   # databases of unequal sizes
+python scripts/train_rlvc.py --max-keypoints 0    # every SIFT keypoint (24 strongest by default)
 python scripts/train_rlvc.py --blocked-is-stuck   # act as if blocked moves were dead ends
-python scripts/train_rlvc.py --max-keypoints 24   # faster SIFT: the 24 strongest keypoints
+python scripts/train_rlvc.py --interactions 5000 --databases 1 --env-kwargs '{"step": 0.08}'
 """
 
 import argparse
@@ -24,7 +24,9 @@ def main() -> None:
     )
     parser.add_argument("--env", default="vistask/VisualMaze-v0")
     parser.add_argument("--env-kwargs", type=json.loads, default={}, help="JSON dict for gym.make")
-    parser.add_argument("--interactions", type=int, default=10_000)
+    parser.add_argument(
+        "--interactions", type=int, default=30_000, help="in all, over the databases"
+    )
     parser.add_argument("--words", type=int, default=8192, help="vocabulary size")
     parser.add_argument(
         "--groups",
@@ -38,7 +40,7 @@ def main() -> None:
     parser.add_argument(
         "--databases",
         type=databases,
-        default=1,
+        default=3,
         help="number of equal databases, or budget fractions of successive databases (0.5,0.5); "
         "the first is random, later ones are collected epsilon-greedily on the current classes "
         "and added to the earlier ones",
@@ -52,8 +54,11 @@ def main() -> None:
     parser.add_argument(
         "--max-keypoints",
         type=int,
-        default=0,
+        default=24,
         help="SIFT keypoints kept per percept, strongest first (0: all); fewer is faster",
+    )
+    parser.add_argument(
+        "--envs", type=int, default=128, help="episodes collected side by side on the classes"
     )
     parser.add_argument("--eval-starts", type=int, default=100)
     parser.add_argument("--eval-every", type=int, default=50)
@@ -75,6 +80,7 @@ def main() -> None:
         args.databases,
         args.blocked_is_stuck,
         args.max_keypoints,
+        args.envs,
         args.eval_starts,
         args.eval_every,
         args.seed,

@@ -193,6 +193,7 @@ def test_train_rlvc_writes_a_summary_that_its_saved_agent_reproduces(tmp_path):
     for key in ("return_ratio", "rlvc_return", "oracle_return", "stages", "classes"):
         assert on_disk[key] == pytest.approx(summary[key])
     assert summary["interactions"] == 2000 and summary["vocabulary_size"] == 256
+    assert len(summary["databases"]) == 3  # the paper's protocol by default
     assert summary["selected_features"] <= summary["classes"] - 1  # a test per internal node
     assert summary["return_ratio"] == pytest.approx(
         summary["rlvc_return"] / summary["oracle_return"]

@@ -2,6 +2,7 @@
 
 import pickle
 
+import cv2
 import numpy as np
 import pytest
 import torch
@@ -40,7 +41,9 @@ def test_color_descriptors_append_chromaticity(percepts):
 def test_batch_extraction_equals_one_by_one(percepts):
     extractor = SiftExtractor(threads=2)
     images = percepts[:41]  # shares of unequal size
+    opencv_threads = cv2.getNumThreads()
     batch = extractor.batch(images)
+    assert cv2.getNumThreads() == opencv_threads  # OpenCV's threads are back after the pool
     for image, kps in zip(images, batch, strict=True):
         single = extractor(image)
         np.testing.assert_array_equal(single.descriptors, kps.descriptors)

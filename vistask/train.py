@@ -60,15 +60,16 @@ def true_grid_policy(
 def train_rlvc(
     env_id: str = "vistask/VisualMaze-v0",
     env_kwargs: dict | None = None,
-    interactions: int = 10_000,
+    interactions: int = 30_000,
     n_words: int = 8192,
     vocabulary_groups: int = 64,
     alpha: float = 0.05,
     min_count: int = 10,
     max_stages: int = 300,
-    databases: int | Sequence[float] = 1,
+    databases: int | Sequence[float] = 3,
     blocked_is_stuck: bool = False,
-    max_keypoints: int = 0,
+    max_keypoints: int = 24,
+    n_envs: int = 128,
     eval_starts: int = 100,
     eval_every: int = 50,
     seed: int = 0,
@@ -79,11 +80,13 @@ def train_rlvc(
 
     Args:
         env_id, env_kwargs: the maze (``gym.make`` arguments).
-        interactions: interactions in all (the budget).
+        interactions: interactions in all (the budget); the default is the paper's protocol,
+            three databases of 10,000.
         n_words, vocabulary_groups, alpha, min_count, max_stages, databases,
             blocked_is_stuck: RLVC settings (see ``RLVCAgent``).
         max_keypoints: SIFT keypoints kept per percept, strongest first (0: all); fewer
             make extraction faster.
+        n_envs: episodes collected side by side on the classes (see ``RLVCAgent``).
         eval_starts: number of fixed start positions of the evaluation.
         eval_every: evaluate the greedy policy every this many stages (and at the end).
         seed: seeds collection and the vocabulary.
@@ -113,6 +116,7 @@ def train_rlvc(
         databases=databases,
         blocked_is_stuck=blocked_is_stuck,
         keypoints=SiftExtractor(max_keypoints=max_keypoints),
+        n_envs=n_envs,
         seed=seed,
     )
     writer = tensorboard(out / "tensorboard")
@@ -179,6 +183,7 @@ def train_rlvc(
         "databases": list(agent.databases),
         "blocked_is_stuck": blocked_is_stuck,
         "max_keypoints": max_keypoints,
+        "n_envs": n_envs,
         "seconds": time.perf_counter() - start,
         "learn_seconds": learned - start,
         "seconds_split": {
