@@ -6,7 +6,7 @@ import pytest
 import torch
 
 import vistask  # noqa: F401  (registers the maze)
-from vistask.envs import VisualMazeVectorEnv
+from vistask.envs import VisualMazeEnv, VisualMazeVectorEnv
 from vistask.rlvc import (
     RLVC,
     ClassTree,
@@ -293,6 +293,12 @@ def test_collect_steps_the_maze_as_one_batch_unless_other_wrappers_surround_it()
     assert isinstance(vector_copies(plain, 3), VisualMazeVectorEnv)
     assert vector_copies(plain, 3).max_episode_steps == plain.spec.max_episode_steps
     assert isinstance(vector_copies(wrapped, 3), gym.vector.SyncVectorEnv)
+
+    class Windy(VisualMazeEnv):  # changes the dynamics: its copies must step its own way
+        def step(self, action):
+            return super().step(1)
+
+    assert isinstance(vector_copies(Windy(), 3), gym.vector.SyncVectorEnv)
     # Both give the same interactions: the batch reproduces separate seeded envs.
     batched, one_by_one = (
         collect(env, 500, max_episode_steps=20, seed=2, max_blocked=2, n_envs=5)

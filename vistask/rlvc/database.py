@@ -58,13 +58,14 @@ def random_policy(n_actions: int) -> ExplorationPolicy:
 def vector_copies(env: gym.Env, n_envs: int) -> gym.vector.VectorEnv:
     """``n_envs`` copies of ``env`` as one vector env without autoreset.
 
-    An env whose unwrapped class steps copies of itself as one batch (``vector_copies``, as the
-    visual maze does) gets those, with ``gym.make``'s time limit, unless other wrappers surround
-    it (their effect would be lost); any other env is deep-copied into a ``SyncVectorEnv``.
+    An env whose unwrapped class steps copies of itself as one batch (defines ``vector_copies``,
+    as the visual maze does) gets those, with ``gym.make``'s time limit, unless other wrappers
+    surround it or it is a subclass (their changes would be lost); any other env is
+    deep-copied into a ``SyncVectorEnv``.
     """
     inner, spec = env.unwrapped, env.spec
     only_make_wrappers = env is inner or (spec is not None and not spec.additional_wrappers)
-    if only_make_wrappers and hasattr(inner, "vector_copies"):
+    if only_make_wrappers and "vector_copies" in vars(type(inner)):
         limit = None if env is inner or spec is None else spec.max_episode_steps
         return inner.vector_copies(n_envs, limit)
     copies = [env] + [copy.deepcopy(env) for _ in range(n_envs - 1)]
