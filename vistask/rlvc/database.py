@@ -66,7 +66,7 @@ def vector_copies(env: gym.Env, n_envs: int) -> gym.vector.VectorEnv:
     inner, spec = env.unwrapped, env.spec
     only_make_wrappers = env is inner or (spec is not None and not spec.additional_wrappers)
     if only_make_wrappers and "vector_copies" in vars(type(inner)):
-        limit = None if env is inner or spec is None else spec.max_episode_steps
+        limit = None if env is inner else spec.max_episode_steps  # a wrapper has a spec here
         return inner.vector_copies(n_envs, limit)
     copies = [env] + [copy.deepcopy(env) for _ in range(n_envs - 1)]
     return gym.vector.SyncVectorEnv(
