@@ -26,7 +26,7 @@ if "vistask/VisualMaze-v0" not in registry:
         id="vistask/VisualMaze-v0",
         entry_point="vistask.envs.visual_maze:VisualMazeEnv",
         vector_entry_point="vistask.envs.visual_maze:VisualMazeVectorEnv",
-        max_episode_steps=100,
+        max_episode_steps=50,
     )
 if "vistask/GraspTrial-v0" not in registry:
     register(id="vistask/GraspTrial-v0", entry_point="vistask.envs.grasp_trial:GraspTrialEnv")

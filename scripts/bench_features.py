@@ -3,7 +3,7 @@
 import argparse
 import json
 
-from vistask.features.bench import bench_features
+from vistask.experiments.bench_features import bench_features
 
 
 def main() -> None:

@@ -13,8 +13,8 @@ from pathlib import Path
 
 import torch
 
-from vistask.logging import run_dir
-from vistask.se3.benchmark import run_benchmark
+from vistask.runs import run_dir
+from vistask.experiments.bench_se3 import run_benchmark
 
 
 def main() -> None:

@@ -12,7 +12,7 @@ import json
 
 import torch
 
-from vistask.compare import DEFAULT_BUDGETS, METHODS, CompareConfig, compare
+from vistask.experiments.compare import DEFAULT_BUDGETS, METHODS, CompareConfig, compare
 
 
 def main() -> None:

@@ -15,7 +15,7 @@ from pathlib import Path
 import torch
 from torch.utils.tensorboard import SummaryWriter
 
-from vistask.logging import run_dir
+from vistask.runs import run_dir
 from vistask.objects import (
     CONDITIONS,
     BenchConfig,

@@ -17,14 +17,14 @@ from pathlib import Path
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
-from vistask.grasp.experiment import (
+from vistask.experiments.grasps import (
     ExperimentConfig,
     format_nbp_table,
     format_table,
     run_experiment,
     run_nbp,
 )
-from vistask.logging import run_dir
+from vistask.runs import run_dir
 
 
 def main() -> None:

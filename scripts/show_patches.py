@@ -22,7 +22,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 
 from vistask.envs.tabletop import OBJECTS, benchmark_scenes, make_scene, object_patches
-from vistask.logging import run_dir
+from vistask.runs import run_dir
 from vistask.vision import view_patches
 from vistask.vision.draw import draw_patches
 

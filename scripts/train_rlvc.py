@@ -11,7 +11,7 @@ python scripts/train_rlvc.py --interactions 5000 --databases 1 --env-kwargs '{"s
 import argparse
 import json
 
-from vistask.train import train_rlvc
+from vistask.experiments.train_rlvc import train_rlvc
 
 
 def databases(text: str) -> int | tuple[float, ...]:

@@ -12,7 +12,7 @@ from vistask.agents import RLVCAgent, TabularQAgent
 from vistask.envs import MazeOracle, VisualMazeEnv, evaluate_policy, start_positions
 from vistask.features import VisualFeatureExtractor
 from vistask.rlvc import VisualClassifier, collect
-from vistask.train import agent_policy, train_rlvc, true_grid_policy
+from vistask.experiments.train_rlvc import agent_policy, train_rlvc, true_grid_policy
 from vistask.wrappers import VisualClasses, VisualFeatures
 
 SMALL = dict(

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import torch
 
-from vistask.compare import (
+from vistask.experiments.compare import (
     METHODS,
     CompareConfig,
     GridCells,

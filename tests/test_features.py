@@ -8,7 +8,8 @@ import pytest
 import torch
 
 from vistask.envs import VisualMazeEnv
-from vistask.features import SiftExtractor, VisualFeatureExtractor, kmeans
+from vistask.features import SiftExtractor, VisualFeatureExtractor
+from vistask.kmeans import kmeans
 from vistask.features.vocabulary import SMALL_BATCH, CoarseGroups, grouped_kmeans
 
 

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 import torch
 
-import vistask  # noqa: F401  (registers the maze)
+import vistask.envs  # noqa: F401  (registers the maze)
 from vistask.envs import VisualMazeEnv, VisualMazeVectorEnv
 from vistask.rlvc import (
     RLVC,

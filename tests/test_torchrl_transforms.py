@@ -10,7 +10,7 @@ from torchrl.collectors import Collector  # SyncDataCollector before torchrl 0.1
 from torchrl.envs import Compose, GymEnv, TransformedEnv
 from torchrl.envs.utils import check_env_specs
 
-import vistask  # noqa: F401  (registers the maze)
+import vistask.envs  # noqa: F401  (registers the maze)
 from vistask.agents import RLVCAgent
 from vistask.torchrl_transforms import VisualClassTransform, VisualFeatureTransform
 from vistask.wrappers import VisualClasses, VisualFeatures

@@ -1,7 +1,7 @@
 """Image -> visual features: local descriptors at interest points and a learned vocabulary."""
 
 from vistask.features.keypoints import Keypoints, SiftExtractor, check_image, check_image_space
-from vistask.features.vocabulary import Occurrences, VisualFeatureExtractor, kmeans
+from vistask.features.vocabulary import Occurrences, VisualFeatureExtractor
 
 __all__ = [
     "Keypoints",
@@ -10,5 +10,4 @@ __all__ = [
     "VisualFeatureExtractor",
     "check_image",
     "check_image_space",
-    "kmeans",
 ]

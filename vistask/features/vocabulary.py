@@ -22,34 +22,7 @@ import numpy as np
 import torch
 
 from vistask.features.keypoints import Keypoints, SiftExtractor
-
-
-def _chunk_rows(n_centroids: int) -> int:
-    """Rows per block of a (rows, F) distance matrix: about 4M entries, small enough to stay
-    in cache-friendly memory (an 8192 x 8192 block made matching 1.6x slower)."""
-    return max(64, (1 << 22) // max(n_centroids, 1))
-
-
-def _nearest(
-    x: torch.Tensor, centroids: torch.Tensor, k: int = 1, c_sq: torch.Tensor | None = None
-):
-    """k nearest centroids of each row of x (M, D), nearest first; ``c_sq`` (C,) are the
-    centroids' squared norms when the caller has them.
-
-    Returns (indices (M, k), squared distances (M, k)).
-    """
-    if c_sq is None:
-        c_sq = (centroids * centroids).sum(1)
-    index = torch.empty(len(x), k, dtype=torch.long, device=x.device)
-    dist = torch.empty(len(x), k, dtype=x.dtype, device=x.device)
-    chunk = _chunk_rows(len(centroids))
-    for s in range(0, len(x), chunk):
-        block = x[s : s + chunk]
-        # ||x - c||^2 = ||x||^2 - 2 x.c + ||c||^2; ||x||^2 does not change the order.
-        d = torch.addmm(c_sq, block, centroids.T, alpha=-2.0)
-        best, index[s : s + chunk] = d.min(1, keepdim=True) if k == 1 else d.topk(k, largest=False)
-        dist[s : s + chunk] = (best + (block * block).sum(1, keepdim=True)).clamp_min_(0)
-    return index, dist
+from vistask.kmeans import kmeans, nearest_centroids
 
 
 SMALL_BATCH = 200  # descriptors: below, one product with every prototype beats the group loop
@@ -91,7 +64,7 @@ class CoarseGroups:
         are the prototypes' squared norms when the caller has them."""
         if c_sq is None:
             c_sq = (centroids * centroids).sum(1)
-        probed = _nearest(x, self.centres, self.probes)[0]  # (M, P)
+        probed = nearest_centroids(x, self.centres, self.probes)[0]  # (M, P)
         if len(x) < SMALL_BATCH:
             return self._nearest_among_all(x, centroids, c_sq, probed, k)
         groups = probed.flatten()  # (M * P,) (row, probe) pairs
@@ -106,7 +79,7 @@ class CoarseGroups:
             lo, hi = self.bounds[g], self.bounds[g + 1]
             if n and hi > lo:
                 end, kg = start + n, min(k, hi - lo)
-                i, d = _nearest(rows[start:end], centroids[lo:hi], kg, c_sq[lo:hi])
+                i, d = nearest_centroids(rows[start:end], centroids[lo:hi], kg, c_sq[lo:hi])
                 found[start:end, :kg], near[start:end, :kg] = i + lo, d
             start += n
         # Back to (row, probe) order.
@@ -129,28 +102,6 @@ class CoarseGroups:
         return columns.gather(1, position).clamp_min_(0), dist
 
 
-def kmeans(x: torch.Tensor, k: int, iters: int = 20, seed: int = 0) -> torch.Tensor:
-    """Lloyd's k-means. x (M, D) float -> centroids (k, D). Deterministic for a seed.
-
-    Empty clusters are re-seeded with the points farthest from their centroids, so that every
-    prototype ends up describing some descriptors.
-    """
-    if len(x) < k:
-        raise ValueError(f"k-means needs at least k={k} descriptors, got {len(x)}")
-    generator = torch.Generator().manual_seed(seed)
-    centroids = x[torch.randperm(len(x), generator=generator)[:k].to(x.device)].clone()
-    for _ in range(iters):
-        index, dist = (column.squeeze(1) for column in _nearest(x, centroids))
-        counts = torch.bincount(index, minlength=k).to(x.dtype)
-        sums = torch.zeros_like(centroids).index_add_(0, index, x)
-        empty = counts == 0
-        centroids = sums / counts.clamp_min(1)[:, None]
-        if empty.any():
-            far = dist.topk(int(empty.sum())).indices
-            centroids[empty] = x[far]
-    return centroids
-
-
 def grouped_kmeans(
     x: torch.Tensor, k: int, groups: int, iters: int = 20, seed: int = 0
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
@@ -162,7 +113,7 @@ def grouped_kmeans(
     if len(x) < k:
         raise ValueError(f"k-means needs at least k={k} descriptors, got {len(x)}")
     centres = kmeans(x, min(groups, k), iters, seed)
-    group = _nearest(x, centres)[0][:, 0]
+    group = nearest_centroids(x, centres)[0][:, 0]
     sizes = torch.bincount(group, minlength=len(centres))
     share = sizes.double() * k / len(x)  # <= sizes, as k <= len(x)
     quota = share.floor().long()
@@ -345,7 +296,7 @@ class VisualFeatureExtractor:
         """k nearest prototypes of descriptors x (M, D): (indices (M, k), squared distances)."""
         k = min(k, self.n_features)
         if self.groups is None:
-            return _nearest(x, self.centroids, k, self._centroid_sq)
+            return nearest_centroids(x, self.centroids, k, self._centroid_sq)
         return self.groups.nearest(x, self.centroids, k, self._centroid_sq)
 
     def words(self, detected: Sequence[Keypoints]) -> list[tuple[np.ndarray, np.ndarray]]:

@@ -27,7 +27,7 @@ from scipy import stats
 from vistask.agents import RLVCAgent, TabularQAgent
 from vistask.envs import MazeOracle, VisualMazeEnv, evaluate_policy, start_positions
 from vistask.envs.maze_oracle import Policy, grid_cells
-from vistask.logging import print_table, run_dir, tensorboard, write_summary
+from vistask.runs import print_table, run_dir, tensorboard, write_summary
 
 METHODS = ("rlvc", "dqn", "ppo", "tabular", "random")
 DEFAULT_BUDGETS = (1_000, 2_000, 5_000, 10_000, 20_000, 50_000, 100_000)

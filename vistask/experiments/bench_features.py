@@ -10,7 +10,7 @@ import numpy as np
 import torch
 
 from vistask.features import SiftExtractor, VisualFeatureExtractor
-from vistask.logging import print_table, run_dir, write_summary
+from vistask.runs import print_table, run_dir, write_summary
 
 # name -> (colour weight of the descriptors, coarse groups of the vocabulary; 0: flat)
 VARIANTS = {

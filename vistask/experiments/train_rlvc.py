@@ -23,7 +23,7 @@ from vistask.envs import (
 from vistask.envs.maze_oracle import Policy, grid_cells
 from vistask.envs.maze_plots import percept_grid, plot_policy, plot_values
 from vistask.features import SiftExtractor
-from vistask.logging import print_table, run_dir, tensorboard, write_summary
+from vistask.runs import print_table, run_dir, tensorboard, write_summary
 from vistask.rlvc import InteractionDatabase, Transitions
 from vistask.rlvc.solver import estimate_mdp, value_iteration
 
