@@ -1,16 +1,20 @@
-"""RLVCAgent: RLVC on a Gymnasium image environment, with an SB3-like API."""
+"""RLVCAgent: RLVC on any Gymnasium image environment, with Stable-Baselines3's API."""
 
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Sequence
+import warnings
 from pathlib import Path
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
-import torch
+from stable_baselines3.common.callbacks import BaseCallback, CallbackList, ConvertCallback
+from stable_baselines3.common.logger import Logger
+from stable_baselines3.common.utils import configure_logger
+from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv
 
-from vistask.features import SiftExtractor, VisualFeatureExtractor, check_image
+from vistask.features import SiftExtractor, VisualFeatureExtractor
 from vistask.rlvc import (
     RLVC,
     InteractionDatabase,
@@ -19,212 +23,294 @@ from vistask.rlvc import (
     check_image_env,
     collect,
 )
+from vistask.saving import load_state, save_state
+
+MAX_BLOCKED = 2  # an epsilon-greedy episode ends after this many blocked moves in a row
+VOCABULARY_SAMPLE = 20_000  # descriptors that k-means fits the vocabulary on
 
 
 class RLVCAgent:
-    """Collects interactions, learns a feature vocabulary and visual classes, acts greedily.
+    """Learns visual classes of an image env by RLVC and acts greedily on them.
 
-    ``learn`` runs, top to bottom: collect a database, extract keypoints of every percept once,
-    fit the vocabulary (first database only), build the interaction database, run RLVC stages.
-    ``databases`` splits the budget into successive databases: the first is collected with
-    uniformly random actions, each later one epsilon-greedily on the current classes. With
-    ``keep_databases`` the stages run on the union of all databases so far (each round until
-    nothing splits); without, each database replaces the previous one for ``refresh_every``
-    stages. After ``learn``, ``database`` holds the interactions the last stages ran on (like
-    SB3's replay buffer, it is not saved).
+    ``learn(total_timesteps)`` collects ``databases`` equal databases of interactions, one
+    after the other: the first with uniformly random actions, each later one epsilon-greedily
+    on the classes learned so far (``n_envs`` episodes side by side), each added to the earlier
+    ones. After each database, RLVC stages run until no class splits: SIFT keypoints of every
+    percept are extracted once, matched to a vocabulary of ``n_words`` visual features (fitted
+    on the first database), and classes are split where a feature reduces the variance of the
+    TD errors significantly. A second ``learn`` call continues: more databases, more stages.
+
+    Episodes end where the env ends them: its terminal states and its own time limit (the
+    ``max_episode_steps`` of ``gym.make``); wrap an env without one in ``TimeLimit``.
+
+    Callbacks (SB3's ``BaseCallback``, a list of them, or a function) are called once per
+    RLVC stage, where the policy changes: ``CheckpointCallback(save_freq=50)`` saves every 50
+    stages, ``EvalCallback(eval_env, eval_freq=50)`` evaluates every 50 stages; returning
+    False stops learning. ``num_timesteps`` counts the interactions collected. With
+    ``tensorboard_log``, every stage logs ``rlvc/classes``, ``rlvc/selected_features``,
+    ``rlvc/mean_abs_td`` and ``rlvc/splits``, with the stage as the step.
 
     Example:
+        >>> import gymnasium as gym, vistask.envs
         >>> env = gym.make("vistask/VisualMaze-v0")
-        >>> agent = RLVCAgent(env, seed=0).learn(total_timesteps=10_000)
-        >>> action, _ = agent.predict(obs)            # obs: (H, W, 3) uint8 image
-        >>> agent.save("rlvc.pt"); RLVCAgent.load("rlvc.pt", env)
+        >>> agent = RLVCAgent(env, seed=0).learn(total_timesteps=30_000)
+        >>> action, _ = agent.predict(obs)               # obs: one image, or a batch
+        >>> agent.save("rlvc.pt"); agent = RLVCAgent.load("rlvc.pt", env=env)
 
     Args:
-        env: environment with (H, W, 3) uint8 images and Discrete actions.
-        n_words: vocabulary size F.
-        alpha: significance level of the split t-tests.
+        env: env with (H, W, 3) or (H, W) uint8 image observations and ``Discrete`` actions
+            (``None`` only when loading, to predict without an env).
+        n_words: vocabulary size: the number of visual features.
+        databases: number of equal databases that ``total_timesteps`` is split into.
+        alpha: significance level of the split t-tests (Welch).
         min_count: minimum interactions on each side of a split.
-        bonferroni: correct alpha for the number of candidate features (see ``find_splits``).
-        blocked_is_stuck: act on Q solved with blocked moves (the same image again) as
-            dead ends, since the greedy policy would repeat them forever (see ``RLVC``).
-        max_stages: stage cap.
-        max_episode_steps: exploration episodes are cut after this many steps.
-        databases: fractions of the budget collected in successive databases (sum 1), or
-            their number, for databases of equal size (the paper's "databases of 10,000
-            interactions": ``databases=3`` with 30,000 timesteps).
-        keep_databases: run the stages on the union of the databases so far, not the latest.
-        refresh_every: stages run on each database but the last, without ``keep_databases``.
-        epsilon: exploration rate when collecting on the current classes.
-        max_blocked: an epsilon-greedy episode is cut after this many blocked moves in a row.
-        n_envs: epsilon-greedy episodes run side by side on copies of ``env``, so that the
-            policy extracts features of ``n_envs`` views at once.
-        gamma: discount (default ``env.unwrapped.gamma``, else 0.99).
-        keypoints: descriptor extractor (default ``SiftExtractor()``).
-        soft_ratio: soft vocabulary assignment (see ``VisualFeatureExtractor``).
-        vocabulary_groups: coarse groups of the two-level vocabulary, whose matching is several
-            times faster than exact matching (0: flat vocabulary, exact nearest prototype).
-        probes: groups searched per descriptor in the two-level vocabulary.
-        seed: seeds collection and the vocabulary.
+        max_stages: stage cap of one ``learn`` call.
+        epsilon: exploration rate of the epsilon-greedy databases and of
+            ``predict(deterministic=False)``.
+        n_envs: episodes collected side by side on the classes, so that features are
+            extracted for batches of views.
+        max_keypoints: SIFT keeps the strongest keypoints of each percept (0: all).
+        gamma: discount (default: the env's ``gamma`` attribute if it has one, else 0.99).
+        tensorboard_log: folder of TensorBoard runs (None: no logging).
+        seed: seeds the episodes, the exploration and the vocabulary.
     """
 
     def __init__(
         self,
         env: gym.Env | None,
         n_words: int = 8192,
+        databases: int = 3,
         alpha: float = 0.05,
         min_count: int = 10,
-        bonferroni: bool = False,
-        blocked_is_stuck: bool = False,
         max_stages: int = 300,
-        max_episode_steps: int = 50,
-        databases: int | Sequence[float] = 1,
-        keep_databases: bool = True,
-        refresh_every: int = 20,
         epsilon: float = 0.1,
-        max_blocked: int | None = 2,
         n_envs: int = 128,
+        max_keypoints: int = 24,
         gamma: float | None = None,
-        keypoints: SiftExtractor | None = None,
-        soft_ratio: float = 1.0,
-        vocabulary_groups: int = 64,
-        probes: int = 3,
+        tensorboard_log: str | Path | None = None,
         seed: int = 0,
     ) -> None:
+        for name, value, low in (
+            ("n_words", n_words, 2),
+            ("databases", databases, 1),
+            ("min_count", min_count, 2),
+            ("max_stages", max_stages, 1),
+            ("n_envs", n_envs, 1),
+            ("max_keypoints", max_keypoints, 0),
+        ):
+            if not isinstance(value, int | np.integer) or value < low:
+                raise ValueError(f"{name} must be an integer >= {low}, got {value!r}")
+        if not 0 < alpha < 1:
+            raise ValueError(f"alpha must be in (0, 1), got {alpha!r}")
+        if not 0 <= epsilon <= 1:
+            raise ValueError(f"epsilon must be in [0, 1], got {epsilon!r}")
+        if gamma is None:
+            gamma = getattr(env.unwrapped, "gamma", 0.99) if env is not None else 0.99
+        if not 0 <= gamma < 1:
+            raise ValueError(f"gamma must be in [0, 1), got {gamma!r}")
+        self.n_words, self.databases = int(n_words), int(databases)
+        self.alpha, self.min_count, self.max_stages = float(alpha), int(min_count), max_stages
+        self.epsilon, self.n_envs, self.max_keypoints = float(epsilon), n_envs, max_keypoints
+        self.gamma, self.seed = float(gamma), int(seed)
+        self.tensorboard_log = tensorboard_log
+        self.env: gym.Env | None = None
+        self.observation_space: gym.spaces.Box | None = None
+        self.action_space: gym.spaces.Discrete | None = None
+        self.env_id: str | None = None
         if env is not None:
-            check_image_env(env)
-            gamma = gamma if gamma is not None else getattr(env.unwrapped, "gamma", 0.99)
-        self.env = env
-        self.n_words, self.alpha, self.min_count, self.bonferroni = (
-            n_words,
-            alpha,
-            min_count,
-            bonferroni,
-        )
-        self.blocked_is_stuck = blocked_is_stuck
-        self.max_stages, self.max_episode_steps = max_stages, max_episode_steps
-        if isinstance(databases, int):
-            if databases < 1:
-                raise ValueError(f"databases must be >= 1, got {databases}")
-            databases = (1 / databases,) * databases
-        if not databases or min(databases) <= 0 or abs(sum(databases) - 1) > 1e-6:
-            raise ValueError(f"databases must be positive fractions summing to 1, got {databases}")
-        self.databases, self.keep_databases = tuple(databases), keep_databases
-        self.refresh_every, self.epsilon, self.max_blocked = refresh_every, epsilon, max_blocked
-        self.n_envs = n_envs
-        self.seed = seed
-        self.gamma = 0.99 if gamma is None else float(gamma)
-        self.keypoints = keypoints or SiftExtractor()
-        self.soft_ratio = soft_ratio
-        self.vocabulary_groups, self.probes = vocabulary_groups, probes
+            self.set_env(env)
         self.extractor: VisualFeatureExtractor | None = None
         self.rlvc: RLVC | None = None
         self.database: InteractionDatabase | None = None
         self.num_timesteps = 0
         self.timing = {"collect": 0.0, "extract": 0.0, "vocabulary": 0.0}
+        self._next_seed = self.seed  # env copy i of the next database resets with this + i
+        self._rng = np.random.default_rng(self.seed)  # predict(deterministic=False)
+        self._logger: Logger | None = None
+        self._vec_env: VecEnv | None = None
+
+    # -- env --------------------------------------------------------------------------------
+    def set_env(self, env: gym.Env) -> None:
+        """Use ``env`` from now on; a learned agent checks that its spaces are the ones it
+        learned on."""
+        check_image_env(env)
+        if self.observation_space is not None:
+            self._check_spaces(env)
+        self.env, self._vec_env = env, None
+        self.observation_space, self.action_space = env.observation_space, env.action_space
+        self.env_id = self.env_id or (env.spec.id if env.spec is not None else None)
+
+    def _check_spaces(self, env: gym.Env) -> None:
+        space, n = env.observation_space, getattr(env.action_space, "n", None)
+        if (
+            tuple(space.shape) != tuple(self.observation_space.shape)
+            or space.dtype != self.observation_space.dtype
+            or n != self.action_space.n
+        ):
+            raise ValueError(
+                f"the agent learned on {self.env_id or 'an env'} with observations "
+                f"{tuple(self.observation_space.shape)} {self.observation_space.dtype} and "
+                f"{self.action_space.n} actions; this env has {tuple(space.shape)} "
+                f"{space.dtype} and {env.action_space}"
+            )
+
+    def get_env(self) -> VecEnv | None:
+        """The env as a one-copy SB3 ``VecEnv`` (what SB3 callbacks read)."""
+        if self._vec_env is None and self.env is not None:
+            self._vec_env = DummyVecEnv([lambda: self.env])
+        return self._vec_env
+
+    def get_vec_normalize_env(self) -> None:
+        return None  # RLVC reads raw images
+
+    @property
+    def logger(self) -> Logger:
+        if self._logger is None:
+            self._logger = configure_logger(0, None)
+        return self._logger
 
     # -- learning ---------------------------------------------------------------------------
     def learn(
         self,
         total_timesteps: int,
-        evaluate: Callable[[RLVCAgent], float] | None = None,
-        eval_every: int = 5,
-        progress_bar: bool = True,
-        on_stage: Callable[[StageRecord], None] | None = None,
+        callback: Any = None,
+        tb_log_name: str = "RLVC",
+        reset_num_timesteps: bool = True,
+        progress_bar: bool = False,
     ) -> RLVCAgent:
-        """Learn visual classes from ``total_timesteps`` environment interactions.
+        """Collect ``total_timesteps`` interactions in ``databases`` databases and learn
+        visual classes from them, continuing from what the agent has learned already.
 
         Args:
-            total_timesteps: interactions in all, split over ``databases``.
-            evaluate: optional ``evaluate(agent) -> return`` of the greedy policy, logged every
-                ``eval_every`` stages.
-            progress_bar: show progress bars.
-            on_stage: called with every stage's record (TensorBoard logging).
+            total_timesteps: interactions to collect in this call.
+            callback: SB3 callback(s), called once per RLVC stage (see the class).
+            tb_log_name: name of the TensorBoard run under ``tensorboard_log``.
+            reset_num_timesteps: count interactions from 0 and start a new TensorBoard run
+                (False: go on counting, in the same run).
+            progress_bar: show progress bars of the stages.
         """
         if self.env is None:
-            raise ValueError("this agent has no env: pass one to RLVCAgent.load(path, env)")
-        if total_timesteps < 1:
-            raise ValueError(f"total_timesteps must be >= 1, got {total_timesteps}")
-        sizes = [round(f * total_timesteps) for f in self.databases]
+            raise ValueError("this agent has no env: pass one to RLVCAgent.load(path, env=env)")
+        if not isinstance(total_timesteps, int | np.integer) or total_timesteps < self.databases:
+            raise ValueError(
+                f"total_timesteps must be an integer >= databases ({self.databases}), "
+                f"got {total_timesteps!r}"
+            )
+        if reset_num_timesteps:
+            self.num_timesteps = 0
+        self._logger = configure_logger(0, self.tensorboard_log, tb_log_name, reset_num_timesteps)
+        callback = self._init_callback(callback)
+        callback.on_training_start(locals(), globals())
+        sizes = [total_timesteps // self.databases] * self.databases
         sizes[0] += total_timesteps - sum(sizes)
-        if min(sizes) < 1:
-            raise ValueError(f"{total_timesteps} interactions cannot fill {len(sizes)} databases")
-        db, seed = None, self.seed
-        for k, size in enumerate(sizes):
-            t0 = time.perf_counter()
-            exploring = self.rlvc is not None
-            n_envs = self.n_envs if exploring else 1
-            transitions = collect(
-                self.env,
-                size,
-                self._exploration_policy() if exploring else None,
-                self.max_episode_steps,
-                seed=seed,
-                max_blocked=self.max_blocked if exploring else None,
-                n_envs=n_envs,
-            )
-            seed += n_envs  # env copy i resets with seed + i: no two databases share a seed
-            t1 = time.perf_counter()
-            detected, fitting = None, 0.0  # later databases: the cache holds what the policy saw
-            if self.extractor is None:
-                detected = self.keypoints.batch(transitions.percepts)
-                t2 = time.perf_counter()
-                self.extractor = VisualFeatureExtractor.fit(
-                    detected=detected,
-                    n_words=self.n_words,
-                    keypoints=self.keypoints,
-                    max_descriptors=20_000,
-                    iters=10,
-                    soft_ratio=self.soft_ratio,
-                    groups=self.vocabulary_groups,
-                    probes=self.probes,
-                    seed=self.seed,
-                )
-                self.rlvc = RLVC(
-                    self.extractor.n_features,
-                    int(self.env.action_space.n),
-                    self.gamma,
-                    self.alpha,
-                    self.min_count,
-                    self.bonferroni,
-                    blocked_is_stuck=self.blocked_is_stuck,
-                )
-                fitting = time.perf_counter() - t2
-            latest = InteractionDatabase.build(transitions, self.extractor, detected)
-            keep = self.keep_databases and db is not None
-            db = InteractionDatabase.concat(db, latest) if keep else latest
-            self.database = db
-            self.timing["collect"] += t1 - t0
-            self.timing["extract"] += time.perf_counter() - t1 - fitting
-            self.timing["vocabulary"] += fitting
-            self.num_timesteps += len(transitions)
-            stages = self.max_stages - len(self.rlvc.history)
-            last = k == len(sizes) - 1
-            if not (last or self.keep_databases):
-                stages = min(stages, self.refresh_every)
-            if stages <= 0:
+        stages_left = self.max_stages
+        for size in sizes:
+            callback.on_rollout_start()
+            self._add_database(size)
+            callback.on_rollout_end()
+            stages_before = len(self.rlvc.history)
+            stopped = False
+
+            def on_stage(record: StageRecord) -> bool:
+                nonlocal stopped
+                stopped = not callback.on_step()  # before the dump: its records join the stage's
+                self._log_stage(record)
+                return not stopped
+
+            self.rlvc.learn(self.database, stages_left, progress_bar, on_stage)
+            stages_left -= len(self.rlvc.history) - stages_before
+            if stopped or stages_left <= 0:
                 break
-            history_before = len(self.rlvc.history)
-            self.rlvc.learn(
-                db,
-                max_stages=stages,
-                evaluate=None if evaluate is None else (lambda _: evaluate(self)),
-                eval_every=eval_every,
-                progress=progress_bar,
-                on_stage=on_stage,
-            )
-            splits = sum(r.splits for r in self.rlvc.history[history_before:])
-            # A fresh database that splits nothing means the classes have converged.
-            if not self.keep_databases and k > 0 and splits == 0:
-                break
+        callback.on_training_end()
+        self.logger.close()
+        self._logger = None
         return self
 
-    def _exploration_policy(self):
-        def policy(observations: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-            greedy = self.predict(observations)[0]
-            explore = rng.random(len(greedy)) < self.epsilon
-            return np.where(explore, rng.integers(self.rlvc.n_actions, size=len(greedy)), greedy)
+    def _init_callback(self, callback: Any) -> BaseCallback:
+        if isinstance(callback, list):
+            callback = CallbackList(callback)
+        elif callback is None:
+            callback = CallbackList([])
+        elif not isinstance(callback, BaseCallback):
+            callback = ConvertCallback(callback)
+        callback.init_callback(self)
+        return callback
 
-        return policy
+    def _add_database(self, size: int) -> None:
+        """Collect ``size`` interactions and add them to the database (the first database
+        also fits the vocabulary and starts the learner)."""
+        t0 = time.perf_counter()
+        exploring = self.rlvc is not None
+        n_envs = self.n_envs if exploring else 1
+        transitions = collect(
+            self.env,
+            size,
+            self._epsilon_greedy if exploring else None,
+            seed=self._next_seed,
+            max_blocked=MAX_BLOCKED if exploring else None,
+            n_envs=n_envs,
+        )
+        self._next_seed += n_envs  # no two databases share an episode seed
+        t1 = time.perf_counter()
+        detected, fitting = None, 0.0  # later databases: the cache holds what the policy saw
+        if self.extractor is None:
+            keypoints = SiftExtractor(max_keypoints=self.max_keypoints)
+            detected = keypoints.batch(transitions.percepts)
+            t2 = time.perf_counter()
+            self.extractor = VisualFeatureExtractor.fit(
+                detected=detected,
+                n_words=self._vocabulary_size(detected),
+                keypoints=keypoints,
+                max_descriptors=VOCABULARY_SAMPLE,
+                iters=10,
+                seed=self.seed,
+            )
+            self.rlvc = RLVC(
+                self.extractor.n_features,
+                int(self.action_space.n),
+                self.gamma,
+                self.alpha,
+                self.min_count,
+            )
+            fitting = time.perf_counter() - t2
+        latest = InteractionDatabase.build(transitions, self.extractor, detected)
+        self.database = (
+            latest if self.database is None else InteractionDatabase.concat(self.database, latest)
+        )
+        self.timing["collect"] += t1 - t0
+        self.timing["extract"] += time.perf_counter() - t1 - fitting
+        self.timing["vocabulary"] += fitting
+        self.num_timesteps += len(transitions)
+
+    def _vocabulary_size(self, detected: list) -> int:
+        """``n_words``, or half the descriptors of a first database too small to fit them."""
+        descriptors = sum(len(k) for k in detected)
+        if descriptors >= self.n_words:
+            return self.n_words
+        if descriptors < 4:
+            raise ValueError(
+                f"the first database shows only {descriptors} SIFT descriptors: collect more "
+                "interactions (total_timesteps) or use an env with textured images"
+            )
+        warnings.warn(
+            f"the first database has {descriptors} SIFT descriptors, too few for "
+            f"{self.n_words} words: fitting {descriptors // 2} (collect more interactions, "
+            "or lower n_words)",
+            stacklevel=3,
+        )
+        return descriptors // 2
+
+    def _log_stage(self, record: StageRecord) -> None:
+        for key in ("classes", "selected_features", "mean_abs_td", "splits"):
+            self.logger.record(f"rlvc/{key}", getattr(record, key))
+        self.logger.record("time/total_timesteps", self.num_timesteps)
+        self.logger.dump(step=record.stage)
+
+    def _epsilon_greedy(self, observations: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        """(N,) actions: greedy on the classes, uniformly random with probability epsilon."""
+        greedy = self.rlvc.greedy(self.extractor.presence(list(observations))).numpy()
+        explore = rng.random(len(greedy)) < self.epsilon
+        return np.where(explore, rng.integers(self.rlvc.n_actions, size=len(greedy)), greedy)
 
     # -- acting -----------------------------------------------------------------------------
     @property
@@ -237,60 +323,84 @@ class RLVCAgent:
         if self.rlvc is None or self.extractor is None:
             raise RuntimeError("the agent has not learned yet: call learn() or load()")
 
-    def predict(self, observation, state=None, episode_start=None, deterministic: bool = True):
-        """SB3's signature: one (H, W, 3) image -> (action, None); a batch (N, H, W, 3) ->
-        ((N,) actions, None). Greedy on the learned classes (RLVC's policy is deterministic)."""
+    def predict(
+        self,
+        observation: np.ndarray,
+        state: Any = None,
+        episode_start: np.ndarray | None = None,
+        deterministic: bool = True,
+    ) -> tuple[int | np.ndarray, None]:
+        """SB3's signature: one image -> (action, None); a batch (N, ...) -> ((N,) actions,
+        None). Greedy on the learned classes; ``deterministic=False`` acts epsilon-greedily.
+        ``state`` and ``episode_start`` are unused (the policy has no memory)."""
         self._check_learned()
         images = np.asarray(observation)
-        single = images.ndim == 3
+        shape = tuple(self.observation_space.shape)
+        single = images.shape == shape
+        if not single and images.shape[1:] != shape:
+            raise ValueError(
+                f"observation must be one image of shape {shape} or a batch (N, *{shape}), "
+                f"got shape {images.shape}"
+            )
+        if images.dtype != self.observation_space.dtype:
+            raise TypeError(
+                f"observation must have dtype {self.observation_space.dtype}, got {images.dtype}"
+            )
         batch = images[None] if single else images
-        for image in batch[:1]:
-            check_image(image)
-        actions = self.rlvc.greedy(self.extractor.presence(list(batch))).numpy()
+        if deterministic:
+            actions = self.rlvc.greedy(self.extractor.presence(list(batch))).numpy()
+        else:
+            actions = self._epsilon_greedy(batch, self._rng)
         return (int(actions[0]) if single else actions), None
 
     # -- persistence ------------------------------------------------------------------------
     def save(self, path: str | Path) -> None:
+        """Save the vocabulary, the classes, Q and the settings (not the databases)."""
         self._check_learned()
-        torch.save(
+        save_state(
+            path,
+            "RLVCAgent",
             {
-                "config": {
+                "params": {
                     "n_words": self.n_words,
+                    "databases": self.databases,
                     "alpha": self.alpha,
                     "min_count": self.min_count,
-                    "bonferroni": self.bonferroni,
-                    "blocked_is_stuck": self.blocked_is_stuck,
                     "max_stages": self.max_stages,
-                    "max_episode_steps": self.max_episode_steps,
-                    "databases": list(self.databases),
-                    "keep_databases": self.keep_databases,
-                    "refresh_every": self.refresh_every,
                     "epsilon": self.epsilon,
-                    "max_blocked": self.max_blocked,
                     "n_envs": self.n_envs,
+                    "max_keypoints": self.max_keypoints,
                     "gamma": self.gamma,
-                    "soft_ratio": self.soft_ratio,
-                    "vocabulary_groups": self.vocabulary_groups,
-                    "probes": self.probes,
                     "seed": self.seed,
                 },
-                "classifier": self.classifier.state_dict(),
+                "observation_shape": list(self.observation_space.shape),
+                "observation_dtype": str(self.observation_space.dtype),
+                "n_actions": int(self.action_space.n),
+                "env_id": self.env_id,
+                "extractor": self.extractor.state_dict(),
                 "rlvc": self.rlvc.state_dict(),
                 "num_timesteps": self.num_timesteps,
+                "next_seed": self._next_seed,
             },
-            path,
         )
 
     @classmethod
-    def load(cls, path: str | Path, env: gym.Env | None = None) -> RLVCAgent:
-        state = torch.load(path, weights_only=True)
-        classifier = VisualClassifier.from_state_dict(state["classifier"])
-        config = dict(state["config"])
-        config.pop("database_size", None)  # older files; it only shaped how they learned
-        agent = cls(env, keypoints=classifier.extractor.keypoints, **config)
-        agent.extractor = classifier.extractor
+    def load(
+        cls, path: str | Path, env: gym.Env | None = None, tensorboard_log: str | None = None
+    ) -> RLVCAgent:
+        """Load a saved agent; with ``env``, check that its spaces are the ones it learned on
+        (it can then ``learn`` more)."""
+        state = load_state(path, "RLVCAgent")
+        agent = cls(None, tensorboard_log=tensorboard_log, **state["params"])
+        dtype = np.dtype(state["observation_dtype"])
+        agent.observation_space = gym.spaces.Box(0, 255, tuple(state["observation_shape"]), dtype)
+        agent.action_space = gym.spaces.Discrete(state["n_actions"])
+        agent.env_id = state["env_id"]
+        agent.extractor = VisualFeatureExtractor.from_state_dict(state["extractor"])
         agent.rlvc = RLVC.from_state_dict(state["rlvc"])
         if agent.rlvc.n_features != agent.extractor.n_features:
-            raise ValueError("saved classes and vocabulary do not match: the file is corrupt")
-        agent.num_timesteps = state["num_timesteps"]
+            raise ValueError(f"{path}: its classes and vocabulary do not match (corrupt file)")
+        agent.num_timesteps, agent._next_seed = state["num_timesteps"], state["next_seed"]
+        if env is not None:
+            agent.set_env(env)
         return agent

@@ -75,6 +75,57 @@ def _segment_hits(start: np.ndarray, end: np.ndarray, rects: np.ndarray) -> np.n
     return ((enter <= leave) & (leave >= 0) & (enter <= 1)).any(axis=1)
 
 
+def random_layout(seed: int, size: float = 1.0) -> tuple[tuple[Rect, ...], tuple[Rect, ...]]:
+    """Obstacles and exits of a random maze in the style of the paper's Fig. 3: four walls,
+    each leaning on the border, and two exits in two corners, redrawn until every free cell
+    of a 50 x 50 grid is connected to an exit.
+
+    Returns:
+        (obstacles, exits), each a tuple of (x0, y0, x1, y1) rectangles.
+    """
+    rng = np.random.default_rng(seed)
+    thick, exit_side = 0.06 * size, 0.1 * size
+    corners = [(0, 0), (1, 0), (0, 1), (1, 1)]
+    while True:
+        exits = []
+        for cx, cy in (corners[i] for i in rng.choice(4, size=2, replace=False)):
+            x0, y0 = cx * (size - exit_side), cy * (size - exit_side)
+            exits.append((x0, y0, x0 + exit_side, y0 + exit_side))
+        walls = []
+        for _ in range(4):
+            length = rng.uniform(0.2, 0.6) * size
+            across = rng.uniform(0.15, 0.85 - 0.06) * size  # where the wall stands
+            along = 0.0 if rng.random() < 0.5 else size - length  # which border it leans on
+            wall = (across, along, across + thick, along + length)
+            walls.append(
+                wall if rng.random() < 0.5 else (along, across, along + length, across + thick)
+            )
+        geometry = MazeGeometry(size, tuple(walls), tuple(exits))
+        if _connected(geometry):
+            return tuple(walls), tuple(exits)
+
+
+def _connected(geometry: MazeGeometry, grid: int = 50) -> bool:
+    """Every free cell of a grid x grid raster reaches an exit through free cells."""
+    centres = (np.arange(grid) + 0.5) / grid * geometry.size
+    points = np.stack(np.meshgrid(centres, centres), -1).reshape(-1, 2)
+    free = geometry.is_free(points).reshape(grid, grid)
+    goal = _inside(points, geometry.exit_array).reshape(grid, grid)
+    if _inside(geometry.exit_array.reshape(-1, 2), geometry.obstacle_array).any():
+        return False
+    reached = goal.copy()
+    while True:  # flood fill from the exits over free cells, one ring per pass
+        grown = reached.copy()
+        grown[1:] |= reached[:-1]
+        grown[:-1] |= reached[1:]
+        grown[:, 1:] |= reached[:, :-1]
+        grown[:, :-1] |= reached[:, 1:]
+        grown &= free | goal
+        if (grown == reached).all():
+            return bool(reached[free].all())
+        reached = grown
+
+
 @dataclass(frozen=True)
 class MazeGeometry:
     """Geometry and true dynamics of the maze, shared by the env and the oracle.
@@ -173,6 +224,8 @@ class VisualMazeEnv(gym.Env):
         pixels_per_unit: tapestry pixels per maze unit (the maze spans ``size * ppu`` pixels).
         tile: tapestry tile size in pixels.
         tapestry_seed: seed of the tapestry montage (the world, not the episode noise).
+        layout_seed: draw the obstacles, the exits (``random_layout``) and the tapestry's
+            arrangement from this seed instead of the paper's layout (None).
         render_mode: ``None`` or ``"rgb_array"``.
     """
 
@@ -190,8 +243,15 @@ class VisualMazeEnv(gym.Env):
         pixels_per_unit: float = 480.0,
         tile: int = 96,
         tapestry_seed: int = 0,
+        layout_seed: int | None = None,
         render_mode: str | None = None,
     ) -> None:
+        if layout_seed is not None:
+            if obstacles is not DEFAULT_OBSTACLES or exits is not DEFAULT_EXITS:
+                raise ValueError("pass either layout_seed or obstacles and exits, not both")
+            obstacles, exits = random_layout(layout_seed, size)
+            tapestry_seed = layout_seed
+        self.layout_seed = layout_seed
         self.geometry = MazeGeometry(size, tuple(obstacles), tuple(exits), step, noise_std, gamma)
         if not isinstance(window, int | np.integer) or window < 8:
             raise ValueError(f"window must be an integer >= 8 pixels, got {window!r}")

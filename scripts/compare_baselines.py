@@ -26,7 +26,6 @@ def main() -> None:
     parser.add_argument("--seeds", type=int, default=None, help="number of seeds (default 5)")
     parser.add_argument("--seed0", type=int, default=0, help="first seed")
     parser.add_argument("--eval-starts", type=int, default=None, help="default 100")
-    parser.add_argument("--words", type=int, default=None, help="RLVC vocabulary (default 2048)")
     parser.add_argument("--grid", type=int, default=10, help="tabular baseline cells per side")
     parser.add_argument("--device", default="cpu", help="torch device of the SB3 networks")
     parser.add_argument(
@@ -47,7 +46,6 @@ def main() -> None:
         ("budgets", args.budgets),
         ("seeds", args.seeds),
         ("eval_starts", args.eval_starts),
-        ("n_words", args.words),
     ):
         if value is not None:
             overrides[key] = value

@@ -25,8 +25,15 @@ from gymnasium import spaces
 from scipy import stats
 
 from vistask.agents import RLVCAgent, TabularQAgent
-from vistask.envs import MazeOracle, VisualMazeEnv, evaluate_policy, start_positions
+from vistask.envs import (
+    ACTION_NAMES,
+    MazeOracle,
+    VisualMazeEnv,
+    evaluate_policy,
+    start_positions,
+)
 from vistask.envs.maze_oracle import Policy, grid_cells
+from vistask.rlvc import random_policy
 from vistask.runs import print_table, run_dir, tensorboard, write_summary
 
 METHODS = ("rlvc", "dqn", "ppo", "tabular", "random")
@@ -75,11 +82,6 @@ class CompareConfig:
         seeds: number of seeds (seed k uses ``seed0 + k``).
         seed0: first seed.
         eval_starts: number of fixed evaluation start positions.
-        n_words: RLVC vocabulary size (2048, the size the README's comparison was measured
-            with; ``RLVCAgent`` defaults to 8192, which learns better classes from 10k
-            interactions).
-        vocabulary_groups: RLVC's two-level vocabulary (0: the flat vocabulary with exact
-            matching, with which the README's comparison was measured).
         grid: cells per side of the tabular baseline's state discretization.
         dqn_kwargs, ppo_kwargs: extra SB3 constructor arguments (override the defaults).
         device: torch device of the SB3 networks.
@@ -92,8 +94,6 @@ class CompareConfig:
     seeds: int = 5
     seed0: int = 0
     eval_starts: int = 100
-    n_words: int = 2048
-    vocabulary_groups: int = 0
     grid: int = 10
     dqn_kwargs: dict = field(default_factory=dict)
     ppo_kwargs: dict = field(default_factory=dict)
@@ -120,7 +120,6 @@ class CompareConfig:
             "budgets": QUICK_BUDGETS,
             "seeds": 2,
             "eval_starts": 20,
-            "n_words": 256,
             "dqn_kwargs": {"learning_starts": 100, "buffer_size": 1_000, "train_freq": 8},
             "ppo_kwargs": {"n_steps": 128, "batch_size": 64, "n_epochs": 2},
         }
@@ -159,9 +158,9 @@ Evaluate = Callable[[Policy], float]
 Log = Callable[[int, float], None]
 
 
-def _random_policy(seed: int) -> Policy:
-    rng = np.random.default_rng(seed)
-    return lambda percepts, positions: rng.integers(4, size=len(percepts))
+def _random_policy(seed: int, n_actions: int) -> Policy:
+    rng, policy = np.random.default_rng(seed), random_policy(n_actions)
+    return lambda percepts, positions: policy(percepts, rng)
 
 
 def _model_policy(model) -> Policy:
@@ -185,9 +184,7 @@ def run_rlvc(
     for budget in config.budgets:
         env = gym.make(config.env_id, **config.env_kwargs)
         t0 = time.perf_counter()
-        agent = RLVCAgent(
-            env, n_words=config.n_words, vocabulary_groups=config.vocabulary_groups, seed=seed
-        )
+        agent = RLVCAgent(env, seed=seed)
         agent.learn(budget, progress_bar=False)
         train += time.perf_counter() - t0
         returns.append(evaluate(lambda percepts, positions, a=agent: a.predict(percepts)[0]))
@@ -216,9 +213,9 @@ def run_random(
     config: CompareConfig, seed: int, evaluate: Evaluate, log: Log
 ) -> tuple[list[float], float]:
     """Uniformly random actions: no learning, the same score at every budget up to noise."""
-    returns = []
+    returns, n_actions = [], len(ACTION_NAMES)
     for budget in config.budgets:
-        returns.append(evaluate(_random_policy(seed + budget)))
+        returns.append(evaluate(_random_policy(seed + budget, n_actions)))
         log(budget, returns[-1])
     return returns, 0.0
 

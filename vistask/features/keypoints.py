@@ -44,17 +44,19 @@ def check_image(image: np.ndarray) -> np.ndarray:
 
 
 def check_image_space(space, user: str) -> None:
-    """Raise a clear error unless the Gymnasium ``space`` holds (H, W, 3) uint8 images."""
+    """Raise a clear error unless the Gymnasium ``space`` holds (H, W, 3) RGB or (H, W) grey
+    uint8 images."""
     from gymnasium import spaces
 
+    shape = getattr(space, "shape", None) or ()
     if not (
         isinstance(space, spaces.Box)
         and space.dtype == np.uint8
-        and len(space.shape) == 3
-        and space.shape[2] == 3
+        and (len(shape) == 2 or (len(shape) == 3 and shape[2] == 3))
     ):
         raise TypeError(
-            f"{user} needs (H, W, 3) uint8 image observations, got observation space {space}"
+            f"{user} needs (H, W, 3) or (H, W) uint8 image observations, got observation "
+            f"space {space}; render an env to pixels with gymnasium.wrappers.AddRenderObservation"
         )
 
 

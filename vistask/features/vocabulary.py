@@ -24,7 +24,6 @@ import torch
 from vistask.features.keypoints import Keypoints, SiftExtractor
 from vistask.kmeans import kmeans, nearest_centroids
 
-
 SMALL_BATCH = 200  # descriptors: below, one product with every prototype beats the group loop
 
 
@@ -130,18 +129,15 @@ def grouped_kmeans(
 def _assign(
     x: torch.Tensor,
     nearest: Callable[[torch.Tensor, int], tuple[torch.Tensor, torch.Tensor]],
-    soft_ratio: float = 1.0,
     max_distance: float | None = None,
-    neighbours: int = 4,
 ) -> tuple[torch.Tensor, torch.Tensor]:
-    """Words of each descriptor: the nearest prototype, plus (soft assignment) up to
-    ``neighbours`` prototypes within ``soft_ratio`` times the nearest distance.
+    """The word of each descriptor: its nearest prototype (none farther than ``max_distance``).
     ``nearest(x, k)`` gives the k nearest prototypes and their squared distances.
 
     Returns (descriptor index (P,), word (P,)) pairs, ordered by descriptor.
     """
-    index, dist = nearest(x, 1 if soft_ratio == 1 else neighbours)
-    keep = dist <= dist[:, :1] * soft_ratio**2
+    index, dist = nearest(x, 1)
+    keep = torch.ones_like(dist, dtype=torch.bool)
     if max_distance is not None:
         keep &= dist <= max_distance**2
     rows, column = keep.nonzero(as_tuple=True)
@@ -153,14 +149,6 @@ def _digest(image: np.ndarray) -> tuple:
     4x cheaper than a cryptographic digest. Two of 100,000 distinct views collide with
     probability about 3e-10; the key lives in one process, so the per-process salt is harmless."""
     return image.shape, hash(image.tobytes())
-
-
-@dataclass
-class Occurrences:
-    """Visual features found in one image: ``words`` (K,) feature ids, ``xy`` (K, 2) pixels."""
-
-    words: np.ndarray
-    xy: np.ndarray
 
 
 class VisualFeatureExtractor:
@@ -178,9 +166,6 @@ class VisualFeatureExtractor:
         groups: coarse groups of the prototypes (a vocabulary tree), searched instead of all
             prototypes (None: exact nearest prototype).
         max_distance: descriptors farther than this from every prototype are ignored (None: never).
-        soft_ratio: a descriptor also shows the prototypes within ``soft_ratio`` times its
-            nearest distance (1: nearest only). Small shifts of the window perturb descriptors,
-            and soft assignment keeps a feature present where a hard one would flip.
         cache_size: ``presence`` remembers the features of this many distinct images (0: none).
             Control loops see the same percept again and again (a blocked move leaves the
             view unchanged; evaluations replay the same starts), and extraction is the
@@ -192,7 +177,6 @@ class VisualFeatureExtractor:
         keypoints: SiftExtractor,
         centroids: torch.Tensor,
         max_distance: float | None = None,
-        soft_ratio: float = 1.0,
         cache_size: int = 100_000,
         groups: CoarseGroups | None = None,
     ) -> None:
@@ -211,9 +195,6 @@ class VisualFeatureExtractor:
         self._centroid_sq = (self.centroids * self.centroids).sum(1)
         self.groups = groups
         self.max_distance = max_distance
-        if soft_ratio < 1:
-            raise ValueError(f"soft_ratio must be >= 1, got {soft_ratio}")
-        self.soft_ratio = float(soft_ratio)
         self.cache_size = cache_size
         self._cache: dict[tuple, np.ndarray] = {}  # image digest -> present feature ids
 
@@ -230,7 +211,7 @@ class VisualFeatureExtractor:
         """Short hash of the vocabulary and extractor settings (checked when loading trees)."""
         h = hashlib.sha1(self.centroids.cpu().numpy().tobytes())
         h.update(repr(sorted(self.keypoints.config().items())).encode())
-        h.update(repr((self.max_distance, self.soft_ratio)).encode())
+        h.update(repr(self.max_distance).encode())
         if self.groups is not None:
             h.update(self.groups.group_of.cpu().numpy().tobytes())
             h.update(self.groups.centres.cpu().numpy().tobytes())
@@ -247,8 +228,7 @@ class VisualFeatureExtractor:
         max_descriptors: int = 60_000,
         iters: int = 15,
         max_distance: float | None = None,
-        soft_ratio: float = 1.0,
-        groups: int = 0,
+        groups: int = 64,
         probes: int = 3,
         seed: int = 0,
     ) -> VisualFeatureExtractor:
@@ -261,7 +241,7 @@ class VisualFeatureExtractor:
             detected: keypoints already extracted from the sample percepts.
             max_descriptors: random subset of descriptors used by k-means (speed).
             iters: k-means iterations.
-            max_distance, soft_ratio: see the class.
+            max_distance: see the class.
             groups: fit a two-level vocabulary with this many coarse groups (0: flat k-means,
                 exact matching); with 8192 words, 64 groups and 3 probes match several times
                 faster, and fit much faster (``scripts/bench_features.py``).
@@ -287,10 +267,10 @@ class VisualFeatureExtractor:
                 "use more sample percepts or fewer words"
             )
         if groups <= 0:
-            return cls(keypoints, kmeans(x, n_words, iters, seed), max_distance, soft_ratio)
+            return cls(keypoints, kmeans(x, n_words, iters, seed), max_distance)
         centroids, group_of, centres = grouped_kmeans(x, n_words, groups, iters, seed)
         coarse = CoarseGroups(centres, group_of, probes)
-        return cls(keypoints, centroids, max_distance, soft_ratio, groups=coarse)
+        return cls(keypoints, centroids, max_distance, groups=coarse)
 
     def nearest(self, x: torch.Tensor, k: int = 1) -> tuple[torch.Tensor, torch.Tensor]:
         """k nearest prototypes of descriptors x (M, D): (indices (M, k), squared distances)."""
@@ -305,19 +285,11 @@ class VisualFeatureExtractor:
         if sizes.sum() == 0:
             return [(np.zeros(0, np.int64), np.zeros(0, np.int64)) for _ in detected]
         x = torch.from_numpy(np.concatenate([k.descriptors for k in detected]))
-        rows, words = _assign(x, self.nearest, self.soft_ratio, self.max_distance)
+        rows, words = _assign(x, self.nearest, self.max_distance)
         image = np.repeat(np.arange(len(detected)), sizes)[rows.numpy()]
         local = rows.numpy() - (np.cumsum(sizes) - sizes)[image]
         bounds = np.searchsorted(image, np.arange(1, len(detected)))
         return list(zip(np.split(local, bounds), np.split(words.numpy(), bounds), strict=True))
-
-    def occurrences(self, images: Sequence[np.ndarray]) -> list[Occurrences]:
-        """Features and keypoint positions of each image (what compound features need)."""
-        detected = self.keypoints.batch(images)
-        return [
-            Occurrences(words, k.xy[index])
-            for (index, words), k in zip(self.words(detected), detected, strict=True)
-        ]
 
     def presence_of(self, detected: Sequence[Keypoints]) -> torch.Tensor:
         """(N, F) bool presence matrix of already extracted keypoints."""
@@ -358,7 +330,6 @@ class VisualFeatureExtractor:
             "keypoints": self.keypoints.config(),
             "centroids": self.centroids.cpu(),
             "max_distance": self.max_distance,
-            "soft_ratio": self.soft_ratio,
             "groups": None
             if self.groups is None
             else {
@@ -374,7 +345,6 @@ class VisualFeatureExtractor:
             SiftExtractor(**state["keypoints"]),
             state["centroids"],
             state["max_distance"],
-            state["soft_ratio"],
             groups=CoarseGroups(**state["groups"]) if state.get("groups") else None,
         )
 

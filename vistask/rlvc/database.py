@@ -52,6 +52,7 @@ class Transitions:
 
 
 def random_policy(n_actions: int) -> ExplorationPolicy:
+    """Uniformly random actions in ``range(n_actions)`` for a batch of observations."""
     return lambda observations, rng: rng.integers(n_actions, size=len(observations))
 
 
@@ -78,18 +79,19 @@ def collect(
     env: gym.Env,
     n: int,
     policy: ExplorationPolicy | None = None,
-    max_episode_steps: int = 50,
     seed: int = 0,
     max_blocked: int | None = None,
     n_envs: int = 1,
 ) -> Transitions:
     """Collect ``n`` interactions over episodes from the env's random starts.
 
+    An episode ends when the env terminates or truncates it (its own time limit, e.g. the
+    ``max_episode_steps`` of ``gym.make``), or after ``max_blocked`` blocked moves in a row.
+
     Args:
         env: image env with Discrete actions.
         n: number of interactions.
         policy: batched exploration policy (default: uniformly random actions).
-        max_episode_steps: episodes are cut after this many steps (a cut is not terminal).
         seed: seeds the first reset of each env copy (``seed + i``) and the policy's generator.
         max_blocked: cut an episode after this many blocked moves in a row (the view did not
             change), so that a greedy policy stuck against a wall does not fill the database
@@ -115,10 +117,10 @@ def collect(
             positions.append(np.asarray(infos["position"][i]))
         return len(percepts) - 1
 
-    # Per env copy: the percept index of its view, steps and blocked moves in a row.
+    # Per env copy: the percept index of its view and its blocked moves in a row.
     views, infos = envs.reset(seed=[seed + i for i in range(n_envs)])
     current = [add(views[i], infos, i) for i in range(n_envs)]
-    steps, blocked = np.zeros(n_envs, dtype=int), np.zeros(n_envs, dtype=int)
+    blocked = np.zeros(n_envs, dtype=int)
     while len(act) < n:
         actions = np.asarray(policy(views, rng))
         obs, rewards, terminated, truncated, infos = envs.step(actions)
@@ -132,14 +134,14 @@ def collect(
             next_i.append(following)
             term.append(bool(terminated[i]))
             current[i] = following
-        steps, blocked = steps + 1, np.where(same, blocked + 1, 0)
-        ended = terminated | truncated | (steps == max_episode_steps) | (blocked == max_blocked)
+        blocked = np.where(same, blocked + 1, 0)
+        ended = terminated | truncated | (blocked == max_blocked)
         views = obs
         if ended.any() and len(act) < n:
             views, infos = envs.reset(options={"reset_mask": ended})
             for i in np.flatnonzero(ended):
                 current[i] = add(views[i], infos, i)
-            steps[ended], blocked[ended] = 0, 0
+            blocked[ended] = 0
     return Transitions(
         percepts,
         np.asarray(obs_i),

@@ -2,8 +2,7 @@
 
 The stage loop, top to bottom: map interactions to classes, solve Q on the estimated class MDP,
 compute TD errors, find the significant split of every aliased class, split, repeat until no
-class splits or the stage cap. The policy acts on Q solved on the final classes (optionally
-with blocked moves as dead ends, ``blocked_is_stuck``).
+class splits or the stage cap. The policy acts on Q solved on the current classes.
 """
 
 from __future__ import annotations
@@ -49,14 +48,12 @@ class StageRecord:
     splits: int
     solve_seconds: float
     split_seconds: float
-    greedy_return: float | None = None
 
 
 @dataclass
 class Timing:
     solve: float = 0.0
     split: float = 0.0
-    evaluate: float = 0.0
 
 
 @dataclass
@@ -72,15 +69,8 @@ class RLVC:
         n_features: vocabulary size F.
         n_actions: number of discrete actions.
         gamma: discount factor.
-        alpha: family-wise significance level of the split t-tests.
+        alpha: significance level of the split t-tests.
         min_count: minimum interactions on each side of a split.
-        bonferroni: correct alpha for the number of candidate splits (see ``find_splits``).
-        max_splits_per_stage: split at most this many classes per stage, best first (None: all
-            aliased classes, as in the paper).
-        blocked_is_stuck: solve the Q the policy acts on (``q``, ``greedy``) with blocked
-            interactions, whose next percept is the very same image, bootstrapping nothing:
-            a reactive, deterministic policy that takes a blocked action on an image takes it
-            on the same image again, forever. The split search keeps the paper's TD errors.
     """
 
     n_features: int
@@ -88,68 +78,76 @@ class RLVC:
     gamma: float
     alpha: float = 0.05
     min_count: int = 10
-    bonferroni: bool = True
-    max_splits_per_stage: int | None = None
-    blocked_is_stuck: bool = False
     tree: ClassTree = field(init=False)
-    q: torch.Tensor = field(init=False)
     history: list[StageRecord] = field(default_factory=list, init=False)
     timing: Timing = field(default_factory=Timing, init=False)
+    _q: torch.Tensor | None = field(default=None, init=False, repr=False)
+    # The database and classes the next solve of ``q`` reads (after splits, until it runs).
+    _pending: tuple[InteractionDatabase, torch.Tensor] | None = field(
+        default=None, init=False, repr=False
+    )
 
     def __post_init__(self) -> None:
-        if self.n_actions < 1:
-            raise ValueError(f"n_actions must be >= 1, got {self.n_actions}")
+        if self.n_features < 1 or self.n_actions < 1:
+            raise ValueError(
+                f"n_features and n_actions must be >= 1, got {self.n_features}, {self.n_actions}"
+            )
+        if not 0 <= self.gamma < 1:
+            raise ValueError(f"gamma must be in [0, 1), got {self.gamma}")
+        if not 0 < self.alpha < 1:
+            raise ValueError(f"alpha must be in (0, 1), got {self.alpha}")
+        if self.min_count < 2:
+            raise ValueError(
+                f"min_count must be >= 2 (a variance needs two samples), got {self.min_count}"
+            )
         self.tree = ClassTree(self.n_features)
-        self.q = torch.zeros(1, self.n_actions, dtype=torch.float64)
+        self._q = torch.zeros(1, self.n_actions, dtype=torch.float64)
 
     @property
     def n_classes(self) -> int:
         return self.tree.n_classes
 
-    def solve(
-        self, db: InteractionDatabase, classes: torch.Tensor, blocked_is_stuck: bool = False
-    ) -> torch.Tensor:
-        """Q (S, A) of the current classes on ``db``; ``classes`` (M,) class of each percept.
-        With ``blocked_is_stuck``, blocked interactions (x_{t+1} the same image as x_t)
-        bootstrap nothing, like terminal ones."""
+    @property
+    def q(self) -> torch.Tensor:
+        """(S, A) Q of the current classes, solved on the last database when classes changed."""
+        if self._pending is not None:
+            start = time.perf_counter()
+            with single_thread():
+                self._q = self.solve(*self._pending)
+            self._pending = None
+            self.timing.solve += time.perf_counter() - start
+        return self._q
+
+    def solve(self, db: InteractionDatabase, classes: torch.Tensor) -> torch.Tensor:
+        """Q (S, A) of the current classes on ``db``; ``classes`` (M,) class of each percept."""
         if int(db.actions.max()) >= self.n_actions or int(db.actions.min()) < 0:
             raise ValueError(f"database holds action ids outside 0..{self.n_actions - 1}")
-        no_bootstrap = db.terminal | (db.obs == db.next_obs) if blocked_is_stuck else db.terminal
         mdp = estimate_mdp(
             classes[db.obs],
             db.actions,
             db.rewards,
             classes[db.next_obs],
-            no_bootstrap,
+            db.terminal,
             self.n_classes,
             self.n_actions,
         )
         return value_iteration(mdp, self.gamma)
 
-    def _solve_policy(self, db: InteractionDatabase, classes: torch.Tensor) -> None:
-        start = time.perf_counter()
-        self.q = self.solve(db, classes, self.blocked_is_stuck)
-        self.timing.solve += time.perf_counter() - start
-
     def learn(
         self,
         db: InteractionDatabase,
-        max_stages: int = 200,
-        evaluate: Callable[[RLVC], float] | None = None,
-        eval_every: int = 5,
+        max_stages: int = 300,
         progress: bool = True,
-        on_stage: Callable[[StageRecord], None] | None = None,
+        on_stage: Callable[[StageRecord], bool | None] | None = None,
     ) -> RLVC:
         """Run stages on ``db`` until no class splits or ``max_stages``; continues from the
-        current tree, so it can be called again with a fresh database.
+        current tree, so it can be called again with a larger database.
 
         Args:
             db: interaction database on this learner's vocabulary.
             max_stages: stage cap of this call.
-            evaluate: optional ``evaluate(self) -> greedy-policy return``, run every
-                ``eval_every`` stages and after the last one.
             progress: show a progress bar.
-            on_stage: called with each stage's record (logging).
+            on_stage: called with each stage's record; returning False stops learning.
         """
         if db.n_features != self.n_features:
             raise ValueError(
@@ -158,15 +156,16 @@ class RLVC:
         if max_stages < 1:
             raise ValueError(f"max_stages must be >= 1, got {max_stages}")
         with single_thread():
-            return self._learn(db, max_stages, evaluate, eval_every, progress, on_stage)
+            return self._learn(db, max_stages, progress, on_stage)
 
-    def _learn(self, db, max_stages, evaluate, eval_every, progress, on_stage) -> RLVC:
+    def _learn(self, db, max_stages, progress, on_stage) -> RLVC:
         rows, features = db.interaction_features()
         classes = self.tree.classify(db.presence)
         bar = tqdm(range(max_stages), desc="RLVC stages", disable=not progress, leave=False)
-        for i in bar:
+        for _ in bar:
             start = time.perf_counter()
-            q = self.solve(db, classes)  # the paper's Q, whose TD errors reveal aliasing
+            q = self.solve(db, classes)
+            self._q, self._pending = q, None
             s, s_next = classes[db.obs], classes[db.next_obs]
             deltas = td_errors(q, s, db.actions, db.rewards, s_next, db.terminal, self.gamma)
             solved = time.perf_counter()
@@ -181,13 +180,14 @@ class RLVC:
                 self.n_features,
                 self.alpha,
                 self.min_count,
-                self.bonferroni,
-            )[: self.max_splits_per_stage]
+            )
             for split in splits:
                 new_class = self.tree.split(split.state, split.feature)
                 # Incremental reclassification: only percepts of the split class can move.
                 moved = (classes == split.state) & db.presence[:, split.feature]
                 classes[moved] = new_class
+            if splits:  # the acting Q is solved again when first needed
+                self._pending = (db, classes.clone())
             done = time.perf_counter()
             self.timing.solve += solved - start
             self.timing.split += done - solved
@@ -200,19 +200,10 @@ class RLVC:
                 solve_seconds=solved - start,
                 split_seconds=done - solved,
             )
-            # The cap counts this call's stages; evaluations follow the stage count of all calls.
-            last = not splits or i + 1 == max_stages
-            evaluating = evaluate is not None and (last or (record.stage + 1) % eval_every == 0)
-            if last or evaluating:
-                self._solve_policy(db, classes)
-            if evaluating:
-                t = time.perf_counter()
-                record.greedy_return = float(evaluate(self))
-                self.timing.evaluate += time.perf_counter() - t
             self.history.append(record)
             bar.set_postfix(classes=record.classes, td=f"{record.mean_abs_td:.2f}")
-            if on_stage is not None:
-                on_stage(record)
+            if on_stage is not None and on_stage(record) is False:
+                break
             if not splits:
                 break
         return self
@@ -233,9 +224,6 @@ class RLVC:
                 "gamma": self.gamma,
                 "alpha": self.alpha,
                 "min_count": self.min_count,
-                "bonferroni": self.bonferroni,
-                "max_splits_per_stage": self.max_splits_per_stage,
-                "blocked_is_stuck": self.blocked_is_stuck,
             },
             "tree": self.tree.state_dict(),
             "q": self.q,
@@ -246,7 +234,7 @@ class RLVC:
     def from_state_dict(cls, state: dict) -> RLVC:
         rlvc = cls(**state["config"])
         rlvc.tree = ClassTree.from_state_dict(state["tree"])
-        rlvc.q = state["q"]
+        rlvc._q = state["q"]
         rlvc.history = [StageRecord(**r) for r in state["history"]]
         return rlvc
 

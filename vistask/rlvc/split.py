@@ -46,7 +46,6 @@ def find_splits(
     n_features: int,
     alpha: float = 0.05,
     min_count: int = 10,
-    bonferroni: bool = True,
 ) -> list[Split]:
     """Best significant split of every class.
 
@@ -57,9 +56,6 @@ def find_splits(
         n_states, n_actions, n_features: sizes S, A, F.
         alpha: significance level of Welch's two-sample t-test.
         min_count: minimum number of interactions on each side of a split.
-        bonferroni: test at alpha / (number of candidate (action, feature) pairs of the class).
-            The best of thousands of candidate features is always "significant" at a plain
-            alpha, even on pure noise; the correction keeps alpha the family-wise error rate.
 
     Returns:
         One ``Split`` per class whose best split is significant, by decreasing reduction.
@@ -109,8 +105,6 @@ def find_splits(
     reduction = _sse(n_gc, s1_gc, s2_gc) - sse_f - sse_nf
     valid = reduction > 0
     state_of, action_of = active // n_actions, active % n_actions
-    tests = torch.zeros(n_states, dtype=torch.float64).index_add_(0, state_of[cg], valid.double())
-    level = alpha / tests.clamp_min(1) if bonferroni else torch.full((n_states,), alpha)
 
     # Welch's t for every candidate, in torch; exact p-values (scipy) only where |t| beats the
     # normal quantile, a lower bound of every Student quantile, so the rest cannot pass.
@@ -118,8 +112,7 @@ def find_splits(
     se2_f, se2_nf = v_f / n_f, v_nf / n_nf
     diff = s1_f / n_f - s1_nf / n_nf
     t = diff.abs() / (se2_f + se2_nf).sqrt()  # inf for a perfect split, nan for no difference
-    group_level = level[state_of]
-    z = torch.from_numpy(stats.norm.isf(group_level.numpy() / 2))[cg]
+    z = float(stats.norm.isf(alpha / 2))
     maybe = valid & (t.nan_to_num(0.0) > z)
     p = torch.ones_like(t)
     if maybe.any():
@@ -127,7 +120,7 @@ def find_splits(
         df = (a + b) ** 2 / (a**2 / (n_f[maybe] - 1) + b**2 / (n_nf[maybe] - 1))
         df = df.nan_to_num(nan=1.0).clamp_min(1)
         p[maybe] = torch.from_numpy(2 * stats.t.sf(t[maybe].numpy(), df.numpy()))
-    significant = maybe & (p < group_level[cg])
+    significant = maybe & (p < alpha)
 
     # Eq. (7) among the significant candidates: the purest split of every class; among equal
     # ones (features with the same presence split alike), the first in (action, feature) order.

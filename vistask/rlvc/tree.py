@@ -27,8 +27,6 @@ class ClassTree:
         n_features: number of visual features F a presence vector holds.
     """
 
-    numpy_on_cpu = True  # classify CPU tensors with numpy (False: torch, as on other devices)
-
     def __init__(self, n_features: int) -> None:
         if n_features < 1:
             raise ValueError(f"n_features must be >= 1, got {n_features}")
@@ -86,7 +84,7 @@ class ClassTree:
         device = presence.device
         # The loop runs once per tree level (over 100 after a few databases): on the CPU,
         # numpy's fancy indexing costs about a microsecond a call against torch's ten.
-        backend = "numpy" if device.type == "cpu" and self.numpy_on_cpu else device
+        backend = "numpy" if device.type == "cpu" else device
         if backend not in self._tables:
             internal = np.array(self.feature) >= 0
             nodes = np.arange(len(self.feature))
