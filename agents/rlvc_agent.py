@@ -227,12 +227,12 @@ class RLVCAgent:
         return self
 
     def _init_callback(self, callback: Any) -> BaseCallback:
-        if isinstance(callback, list):
-            callback = CallbackList(callback)
-        elif callback is None:
-            callback = CallbackList([])
-        elif not isinstance(callback, BaseCallback):
-            callback = ConvertCallback(callback)
+        def convert(c: Any) -> BaseCallback:  # a function(locals, globals) -> bool, as in SB3
+            return c if isinstance(c, BaseCallback) else ConvertCallback(c)
+
+        if callback is None or isinstance(callback, list):
+            callback = CallbackList([convert(c) for c in callback or []])
+        callback = convert(callback)
         callback.init_callback(self)
         return callback
 

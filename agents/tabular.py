@@ -9,6 +9,8 @@ import numpy as np
 import torch
 from tqdm.auto import tqdm
 
+from vistask.saving import load_state, save_state
+
 
 class TabularQAgent:
     """Epsilon-greedy tabular Q-learning with an SB3-like API.
@@ -87,7 +89,9 @@ class TabularQAgent:
 
     def predict(self, observation, state=None, episode_start=None, deterministic: bool = True):
         """SB3's signature: returns (action or actions, None) for one state id or a batch."""
-        states = np.asarray(observation, dtype=np.int64)
+        states = np.asarray(observation)
+        if not np.issubdtype(states.dtype, np.integer):
+            raise TypeError(f"state ids must be integers, got {observation!r}")
         if states.min(initial=0) < 0 or states.max(initial=0) >= len(self.q):
             raise ValueError(f"state ids must lie in 0..{len(self.q) - 1}, got {observation}")
         actions = self.q[states.reshape(-1)].argmax(axis=1)
@@ -97,7 +101,9 @@ class TabularQAgent:
         return (actions.reshape(states.shape), None)
 
     def save(self, path: str | Path) -> None:
-        torch.save(
+        save_state(
+            path,
+            "TabularQAgent",
             {
                 "q": torch.from_numpy(self.q),
                 "learning_rate": self.learning_rate,
@@ -106,12 +112,11 @@ class TabularQAgent:
                 "seed": self.seed,
                 "num_timesteps": self.num_timesteps,
             },
-            path,
         )
 
     @classmethod
     def load(cls, path: str | Path, env: gym.Env | None = None) -> TabularQAgent:
-        state = torch.load(path, weights_only=True)
+        state = load_state(path, "TabularQAgent")
         q = state["q"].numpy()
         agent = cls(
             None,
@@ -123,6 +128,9 @@ class TabularQAgent:
             n_actions=q.shape[1],
         )
         if env is not None and (env.observation_space.n, env.action_space.n) != q.shape:
-            raise ValueError(f"env spaces do not match the saved Q table of shape {q.shape}")
+            raise ValueError(
+                f"{path} holds Q for {q.shape[0]} states and {q.shape[1]} actions; the env has "
+                f"{env.observation_space} and {env.action_space}"
+            )
         agent.env, agent.q, agent.num_timesteps = env, q, state["num_timesteps"]
         return agent

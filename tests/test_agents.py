@@ -7,12 +7,13 @@ import numpy as np
 import pytest
 import torch
 from gymnasium.utils.env_checker import check_env
+from stable_baselines3.common.callbacks import CheckpointCallback, EvalCallback
 
 from vistask.agents import RLVCAgent, TabularQAgent
 from vistask.envs import MazeOracle, VisualMazeEnv, evaluate_policy, start_positions
+from vistask.experiments.train_rlvc import agent_policy, train_rlvc, true_grid_policy
 from vistask.features import VisualFeatureExtractor
 from vistask.rlvc import VisualClassifier, collect
-from vistask.experiments.train_rlvc import agent_policy, train_rlvc, true_grid_policy
 from vistask.wrappers import VisualClasses, VisualFeatures
 
 SMALL = dict(
@@ -24,10 +25,13 @@ SMALL = dict(
 )
 
 
+def small_maze() -> gym.Env:
+    return gym.make("vistask/VisualMaze-v0", **SMALL)
+
+
 @pytest.fixture(scope="module")
 def small_agent() -> RLVCAgent:
-    env = VisualMazeEnv(**SMALL)
-    return RLVCAgent(env, n_words=512, seed=0).learn(4000, progress_bar=False)
+    return RLVCAgent(small_maze(), n_words=512, seed=0).learn(4000)
 
 
 def test_rlvc_reaches_near_oracle_return_on_a_small_maze(small_agent):
@@ -43,7 +47,7 @@ def test_rlvc_reaches_near_oracle_return_on_a_small_maze(small_agent):
     database = small_agent.database
     assert len(database) == small_agent.num_timesteps == 4000
     assert database.positions is not None and len(database.positions) == len(database.presence)
-    ceiling = evaluate_policy(maze, true_grid_policy(maze.geometry, database, grid=8), starts)
+    ceiling = evaluate_policy(maze, true_grid_policy(maze, database, grid=8), starts)
     assert ceiling.mean >= 0.9 * oracle
 
 
@@ -52,12 +56,12 @@ def test_true_grid_aggregation_of_random_interactions_is_near_the_oracle():
     starts = start_positions(maze.geometry, 60)
     oracle = evaluate_policy(maze, MazeOracle.solve(maze.geometry).as_policy(), starts).mean
     database = collect(maze, 3000, seed=0)
-    ceiling = evaluate_policy(maze, true_grid_policy(maze.geometry, database, grid=8), starts)
-    coarse = evaluate_policy(maze, true_grid_policy(maze.geometry, database, grid=1), starts)
+    ceiling = evaluate_policy(maze, true_grid_policy(maze, database, grid=8), starts)
+    coarse = evaluate_policy(maze, true_grid_policy(maze, database, grid=1), starts)
     assert ceiling.mean >= 0.9 * oracle > coarse.mean
     database.positions = None
     with pytest.raises(ValueError, match="true positions"):
-        true_grid_policy(maze.geometry, database)
+        true_grid_policy(maze, database)
 
 
 def test_visual_features_wrapper_passes_check_env(small_agent):
@@ -108,13 +112,25 @@ def test_agent_save_load_round_trip_gives_identical_classes(small_agent, tmp_pat
     assert np.array_equal(
         loaded.predict(np.stack(images))[0], small_agent.predict(np.stack(images))[0]
     )
-    # Files saved before ``databases`` replaced ``database_size`` still load.
-    state = torch.load(tmp_path / "agent.pt", weights_only=True)
-    state["config"]["database_size"] = None
-    del state["config"]["databases"], state["config"]["keep_databases"]
-    del state["config"]["max_blocked"], state["config"]["n_envs"]
-    torch.save(state, tmp_path / "old.pt")
-    assert RLVCAgent.load(tmp_path / "old.pt").classifier.n_classes == loaded.classifier.n_classes
+
+
+def test_load_refuses_other_spaces_and_bad_files(small_agent, tmp_path):
+    path = tmp_path / "agent.pt"
+    small_agent.save(path)
+    assert RLVCAgent.load(path).env_id == "vistask/VisualMaze-v0"
+    with pytest.raises(ValueError, match=r"\(48, 48, 3\)"):
+        RLVCAgent.load(path, env=gym.make("vistask/VisualMaze-v0", **{**SMALL, "window": 48}))
+    with pytest.raises(ValueError, match="observation must be one image of shape"):
+        small_agent.predict(np.zeros((48, 48, 3), np.uint8))
+    (tmp_path / "truncated.pt").write_bytes(path.read_bytes()[:1000])
+    (tmp_path / "garbage.pt").write_bytes(b"not a model")
+    for name in ("truncated.pt", "garbage.pt"):
+        with pytest.raises(ValueError, match=f"{name} cannot be read as a saved RLVCAgent"):
+            RLVCAgent.load(tmp_path / name)
+    tabular = TabularQAgent(None, n_states=3, n_actions=2)
+    tabular.save(tmp_path / "q.pt")
+    with pytest.raises(ValueError, match="holds a TabularQAgent, not a RLVCAgent"):
+        RLVCAgent.load(tmp_path / "q.pt")
 
 
 def test_classifier_load_refuses_a_mismatched_vocabulary(small_agent, tmp_path):
@@ -129,7 +145,7 @@ def test_classifier_load_refuses_a_mismatched_vocabulary(small_agent, tmp_path):
 
 
 def test_unlearned_agent_explains_itself():
-    agent = RLVCAgent(VisualMazeEnv(**SMALL))
+    agent = RLVCAgent(small_maze())
     with pytest.raises(RuntimeError, match="not learned"):
         agent.predict(np.zeros((64, 64, 3), np.uint8))
 
@@ -153,59 +169,96 @@ def test_tabular_q_learning_solves_a_deterministic_gridworld(tmp_path):
         TabularQAgent(gym.make("vistask/VisualMaze-v0"))
 
 
-def test_later_databases_are_collected_on_the_current_classes_and_kept_or_replaced():
-    kept = RLVCAgent(VisualMazeEnv(**SMALL), n_words=128, databases=(0.6, 0.4), seed=0)
-    kept.learn(2500, progress_bar=False)
-    refreshed = RLVCAgent(
-        VisualMazeEnv(**SMALL),
-        n_words=128,
-        databases=(0.5, 0.5),
-        keep_databases=False,
-        refresh_every=3,
-        seed=0,
+def test_a_second_learn_continues_where_the_first_stopped():
+    agent = RLVCAgent(small_maze(), n_words=256, seed=0).learn(1500)
+    stages, classes = len(agent.rlvc.history), agent.rlvc.n_classes
+    first_database = agent.database
+    agent.learn(900, reset_num_timesteps=False)
+    assert agent.num_timesteps == 2400 == len(agent.database)
+    # The earlier interactions stay; the new ones come from new episodes.
+    assert torch.equal(agent.database.actions[:1500], first_database.actions)
+    assert len(agent.rlvc.history) > stages and agent.rlvc.n_classes >= classes
+    agent.learn(300)  # SB3's default: the count restarts, the learning does not
+    assert agent.num_timesteps == 300 and len(agent.database) == 2700
+
+
+def test_sb3_callbacks_run_once_per_stage_and_can_stop_learning(tmp_path):
+    checkpoints = CheckpointCallback(save_freq=2, save_path=str(tmp_path), name_prefix="rlvc")
+    calls = []
+
+    def stop_after_three(_locals, _globals) -> bool:
+        calls.append(1)
+        return len(calls) < 3
+
+    agent = RLVCAgent(small_maze(), n_words=256, seed=0, tensorboard_log=tmp_path / "tb")
+    agent.learn(1500, callback=[checkpoints, stop_after_three])
+    assert len(agent.rlvc.history) == 3 == len(calls)
+    saved = sorted(tmp_path.glob("rlvc_*_steps.zip"))
+    assert len(saved) == 1 and RLVCAgent.load(saved[0]).rlvc.n_classes >= 1
+    assert any((tmp_path / "tb").rglob("events.out.tfevents.*"))
+
+
+def test_eval_callback_evaluates_the_agent_as_an_sb3_model(tmp_path):
+    evaluations = EvalCallback(
+        small_maze(), eval_freq=1, n_eval_episodes=3, log_path=str(tmp_path), verbose=0
     )
-    refreshed.learn(2500, progress_bar=False)
-    assert kept.num_timesteps == refreshed.num_timesteps == 2500
-    assert len(refreshed.rlvc.history) >= 4  # three stages on the first database, more later
-    assert kept.rlvc.n_classes > 1 and refreshed.rlvc.n_classes > 1
-    with pytest.raises(ValueError, match="summing to 1"):
-        RLVCAgent(VisualMazeEnv(**SMALL), databases=(0.5, 0.2))
-    with pytest.raises(ValueError, match="cannot fill"):
-        RLVCAgent(VisualMazeEnv(**SMALL), databases=(0.999, 0.001)).learn(100)
-    assert RLVCAgent(VisualMazeEnv(**SMALL), databases=4).databases == (0.25,) * 4
-    with pytest.raises(ValueError, match=">= 1"):
-        RLVCAgent(VisualMazeEnv(**SMALL), databases=0)
+    agent = RLVCAgent(small_maze(), n_words=256, seed=0).learn(1500, callback=evaluations)
+    assert len(evaluations.evaluations_results) == len(agent.rlvc.history)
+    assert all(len(rewards) == 3 for rewards in evaluations.evaluations_results)
+    assert np.isfinite(evaluations.last_mean_reward)
+
+
+def test_predict_is_epsilon_greedy_when_not_deterministic(small_agent):
+    maze = small_agent.env.unwrapped
+    images = np.stack([maze.percept_at(p) for p in start_positions(maze.geometry, 200)])
+    greedy = small_agent.predict(images)[0]
+    epsilon = small_agent.epsilon
+    small_agent.epsilon = 1.0
+    random = small_agent.predict(images, deterministic=False)[0]
+    small_agent.epsilon = 0.0
+    assert np.array_equal(small_agent.predict(images, deterministic=False)[0], greedy)
+    small_agent.epsilon = epsilon
+    assert set(random.tolist()) == {0, 1, 2, 3} and (random != greedy).mean() > 0.5
+
+
+def test_rlvc_with_its_defaults_solves_a_pixel_gridworld_it_was_not_written_for():
+    """MiniGrid's 5x5 room, seen as the agent's egocentric 56x56 RGB view: 7 actions, 100-step
+    episodes (the env's own limit), reward 1 - 0.9 * steps / 100. The shortest path takes 5
+    steps, so the optimum is 0.955 from the fixed start."""
+    pytest.importorskip("minigrid")
+    from minigrid.wrappers import ImgObsWrapper, RGBImgPartialObsWrapper
+
+    def make() -> gym.Env:
+        return ImgObsWrapper(RGBImgPartialObsWrapper(gym.make("MiniGrid-Empty-5x5-v0")))
+
+    agent = RLVCAgent(make(), seed=0).learn(10_000)
+    env = make()
+    for seed in range(3):
+        obs, _ = env.reset(seed=seed)
+        for _ in range(100):
+            obs, reward, terminated, truncated, _ = env.step(agent.predict(obs)[0])
+            if terminated or truncated:
+                break
+        assert terminated and reward == pytest.approx(1 - 0.9 * 5 / 100)
 
 
 def test_train_rlvc_writes_a_summary_that_its_saved_agent_reproduces(tmp_path):
-    summary = train_rlvc(
-        env_kwargs=SMALL,
-        interactions=2000,
-        n_words=256,
-        vocabulary_groups=8,
-        blocked_is_stuck=True,
-        max_keypoints=20,
-        eval_starts=30,
-        out=tmp_path,
-        progress=False,
-    )
+    summary = train_rlvc(env_kwargs=SMALL, interactions=2000, out=tmp_path, progress=False)
     on_disk = json.loads((tmp_path / "summary.json").read_text())
     for key in ("return_ratio", "rlvc_return", "oracle_return", "stages", "classes"):
         assert on_disk[key] == pytest.approx(summary[key])
-    assert summary["interactions"] == 2000 and summary["vocabulary_size"] == 256
-    assert len(summary["databases"]) == 3  # the paper's protocol by default
+    assert summary["interactions"] == 2000
     assert summary["selected_features"] <= summary["classes"] - 1  # a test per internal node
     assert summary["return_ratio"] == pytest.approx(
         summary["rlvc_return"] / summary["oracle_return"]
     )
     for picture in ("value_functions.png", "rlvc_policy.png", "oracle_policy.png"):
         assert (tmp_path / picture).stat().st_size > 0
-    assert any((tmp_path / "tensorboard").iterdir())
+    assert any((tmp_path / "tensorboard").rglob("events.out.tfevents.*"))
     # The saved agent acts as the one that was scored, from the same starts.
     env = gym.make("vistask/VisualMaze-v0", **SMALL)
     agent = RLVCAgent.load(tmp_path / "rlvc_agent.pt", env)
-    assert agent.blocked_is_stuck and agent.rlvc.blocked_is_stuck
-    assert agent.extractor.keypoints.max_keypoints == summary["max_keypoints"] == 20
-    result = evaluate_policy(env, agent_policy(agent), start_positions(env.unwrapped.geometry, 30))
+    starts = start_positions(env.unwrapped.geometry, 100)
+    result = evaluate_policy(env, agent_policy(agent), starts)
     assert result.mean == pytest.approx(summary["rlvc_return"])
     assert summary["starts_never_exiting"] == int((result.returns == 0).sum())

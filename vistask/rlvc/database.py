@@ -61,18 +61,29 @@ def vector_copies(env: gym.Env, n_envs: int) -> gym.vector.VectorEnv:
 
     An env whose unwrapped class steps copies of itself as one batch (defines ``vector_copies``,
     as the visual maze does) gets those, with ``gym.make``'s time limit, unless other wrappers
-    surround it or it is a subclass (their changes would be lost); any other env is
-    deep-copied into a ``SyncVectorEnv``.
+    surround it or it is a subclass (their changes would be lost); any other env is copied
+    into a ``SyncVectorEnv`` (``_copy``).
     """
     inner, spec = env.unwrapped, env.spec
     only_make_wrappers = env is inner or (spec is not None and not spec.additional_wrappers)
     if only_make_wrappers and "vector_copies" in vars(type(inner)):
         limit = None if env is inner else spec.max_episode_steps  # a wrapper has a spec here
         return inner.vector_copies(n_envs, limit)
-    copies = [env] + [copy.deepcopy(env) for _ in range(n_envs - 1)]
+    copies = [env] + [_copy(env) for _ in range(n_envs - 1)]
     return gym.vector.SyncVectorEnv(
         [lambda e=e: e for e in copies], autoreset_mode=gym.vector.AutoresetMode.DISABLED
     )
+
+
+def _copy(env: gym.Env) -> gym.Env:
+    """A fresh env like ``env``: made again from its spec (wrappers included) where it has
+    one, since renderers (pygame, MuJoCo) do not deep-copy; else a deep copy."""
+    if env.spec is not None:
+        try:
+            return gym.make(env.spec)
+        except Exception:  # a wrapper that does not record its arguments, say
+            pass
+    return copy.deepcopy(env)
 
 
 def collect(
