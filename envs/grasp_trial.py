@@ -39,34 +39,33 @@ from typing import Any, ClassVar
 os.environ.setdefault("MUJOCO_GL", "egl")
 
 import gymnasium as gym
-import mujoco
 import numpy as np
 import torch
 from gymnasium import spaces
 from robosuite.controllers import load_composite_controller_config
 from robosuite.environments.manipulation.manipulation_env import ManipulationEnv
-from robosuite.models.arenas import TableArena
 from robosuite.models.objects import BoxObject, MujocoObject
 from robosuite.models.tasks import ManipulationTask
 from scipy.spatial.transform import Rotation, Slerp
 
-from vistask.envs.tabletop import CAMERAS, OBJECTS, TABLE_SIZE, TABLE_TOP_Z
-from vistask.grasp.learning import Workspace
-from vistask.vision import (
-    Camera,
-    PatchConfig,
-    Patches,
-    RGBDView,
-    depth_buffer_to_metres,
-    intrinsics_from_fovy,
-    look_at,
-    view_patches,
+from vistask.envs.scene import (
+    CAMERAS,
+    TABLE_SIZE,
+    TABLE_TOP_Z,
+    add_cameras,
+    body_bounds,
+    render_view,
+    table_arena,
+    wxyz_to_xyzw,
+    xyzw_to_wxyz,
 )
+from vistask.envs.tabletop import OBJECTS
+from vistask.grasp.learning import Workspace
+from vistask.vision import Camera, Patches, PatchExtractor, RGBDView, view_patches
 
 # robosuite logs every controller-config load at INFO level; one line per trial env is noise.
 logging.getLogger("robosuite_logs").setLevel(logging.WARNING)
 
-_MJ_TO_CV = np.diag([1.0, -1.0, -1.0])
 PANDA_MAX_OPENING = 0.08  # metres between the fingertip pads, fully open
 
 # Objects the Panda's 8 cm gripper can hold; the cube is robosuite's Lift cube.
@@ -105,7 +104,7 @@ class _GraspScene(ManipulationEnv):
     """A Panda at the table with one instance of each object kind in ``kinds``.
 
     Objects are placed by ``GraspTrialEnv`` after robosuite's reset; extra cameras come from
-    ``vistask.envs.tabletop.CAMERAS``.
+    ``vistask.envs.scene.CAMERAS``.
     """
 
     def __init__(self, kinds: Sequence[str], cameras: Sequence[str], **kwargs: Any) -> None:
@@ -117,14 +116,9 @@ class _GraspScene(ManipulationEnv):
         super()._load_model()
         robot = self.robots[0].robot_model
         robot.set_base_xpos(robot.base_xpos_offset["table"](TABLE_SIZE[0]))
-        arena = TableArena(table_full_size=TABLE_SIZE, table_offset=(0.0, 0.0, TABLE_TOP_Z))
+        arena = table_arena()
         arena.set_origin([0, 0, 0])
-        for name in self.extra_cameras:
-            spec = CAMERAS[name]
-            cv = look_at(torch.tensor(spec.eye), torch.tensor(spec.target), torch.tensor(spec.up))
-            R_mj = cv[:3, :3].numpy() @ _MJ_TO_CV
-            wxyz = Rotation.from_matrix(R_mj).as_quat()[[3, 0, 1, 2]]
-            arena.set_camera(name, spec.eye, wxyz, camera_attribs={"fovy": str(spec.fovy)})
+        add_cameras(arena, [CAMERAS[name] for name in self.extra_cameras])
         self.objects = [GRASP_OBJECTS[k](k) for k in self.kinds]
         self.model = ManipulationTask(
             mujoco_arena=arena,
@@ -152,7 +146,7 @@ class GraspTrialEnv(gym.Env):
     Args:
         object_kind: the target object, one of ``GRASP_OBJECTS``.
         n_distractors: other objects placed around the target (0-4).
-        cameras: camera names from ``vistask.envs.tabletop.CAMERAS``; () renders nothing.
+        cameras: camera names from ``vistask.envs.scene.CAMERAS``; () renders nothing.
         image_size: square image side in pixels.
         placement_range: the target's x and y are uniform in +-this (metres, table centre).
         control_freq: controller rate (Hz); every phase is a fixed number of control steps.
@@ -260,16 +254,7 @@ class GraspTrialEnv(gym.Env):
     def _collision_bounds(self, body: int) -> np.ndarray:
         """(2, 3) body-frame AABB of all geoms of ``body`` (collision geoms decide the rest)."""
         m, d = self._sim.model._model, self._sim.data._data
-        mujoco.mj_forward(m, d)
-        R_b, t_b = d.xmat[body].reshape(3, 3), d.xpos[body]
-        corners = np.array(np.meshgrid([-1, 1], [-1, 1], [-1, 1], indexing="ij")).reshape(3, -1).T
-        pts = []
-        for g in np.nonzero(m.geom_bodyid == body)[0]:
-            local = m.geom_aabb[g, :3] + corners * m.geom_aabb[g, 3:]
-            world = local @ d.geom_xmat[g].reshape(3, 3).T + d.geom_xpos[g]
-            pts.append((world - t_b) @ R_b)
-        pts = np.concatenate(pts)
-        return np.stack([pts.min(0), pts.max(0)])
+        return body_bounds(m, d, body, np.nonzero(m.geom_bodyid == body)[0])
 
     @property
     def workspace(self) -> Workspace:
@@ -290,7 +275,7 @@ class GraspTrialEnv(gym.Env):
     def _set_object(self, i: int, pos: np.ndarray, quat_xyzw: np.ndarray) -> None:
         d = self._sim.data._data
         a = self._scene.qpos_addr[i]
-        d.qpos[a : a + 7] = np.r_[pos, quat_xyzw[[3, 0, 1, 2]]]
+        d.qpos[a : a + 7] = np.r_[pos, xyzw_to_wxyz(quat_xyzw)]
         v = self._scene.qvel_addr[i]
         d.qvel[v : v + 6] = 0.0
 
@@ -326,7 +311,7 @@ class GraspTrialEnv(gym.Env):
         """(7,) world pose (XYZW) of the target (index 0) or of active distractor ``index``."""
         d = self._sim.data._data
         b = self._scene.body_ids[self._active[index]]
-        return np.r_[d.xpos[b], d.xquat[b][[1, 2, 3, 0]]]
+        return np.r_[d.xpos[b], wxyz_to_xyzw(d.xquat[b])]
 
     def eef_pose(self) -> np.ndarray:
         """(7,) world pose (XYZW) of the gripper frame."""
@@ -470,42 +455,21 @@ class GraspTrialEnv(gym.Env):
         return obs
 
     def _render_view(self, name: str) -> RGBDView:
-        m, d = self._sim.model._model, self._sim.data._data
-        H = W = self.image_size
-        cam_id = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_CAMERA, name)
-        T = np.eye(4)
-        T[:3, :3] = d.cam_xmat[cam_id].reshape(3, 3) @ _MJ_TO_CV
-        T[:3, 3] = d.cam_xpos[cam_id]
-        camera = Camera(
-            intrinsics_from_fovy(float(m.cam_fovy[cam_id]), H, W), torch.from_numpy(T), H, W, name
-        )
-        rgb, buffer = self._sim.render(width=W, height=H, camera_name=name, depth=True)
-        seg = self._sim.render(width=W, height=H, camera_name=name, segmentation=True)
-        label_of_body = np.full(m.nbody, -1, dtype=np.int64)
-        for label, i in enumerate(self._active):
-            label_of_body[self._scene.body_ids[i]] = label
-        geom_label = np.r_[label_of_body[m.body_rootid[m.geom_bodyid]], -1]
-        is_geom = seg[..., 0] == int(mujoco.mjtObj.mjOBJ_GEOM)
-        labels = geom_label[np.where(is_geom, seg[..., 1], -1)]
-        extent = m.stat.extent
-        depth = depth_buffer_to_metres(
-            torch.from_numpy(buffer[::-1].copy()), m.vis.map.znear * extent, m.vis.map.zfar * extent
-        )
-        return RGBDView(
-            rgb=torch.from_numpy(rgb[::-1].copy()),
-            depth=depth.float(),
-            camera=camera,
-            segmentation=torch.from_numpy(labels[::-1].copy()),
-        )
+        bodies = [self._scene.body_ids[i] for i in self._active]
+        return render_view(self._sim, name, self.image_size, self.image_size, bodies)
 
     def patches(
-        self, obs: dict[str, np.ndarray], label: int | None = 0, config: PatchConfig | None = None
+        self,
+        obs: dict[str, np.ndarray],
+        label: int | None = 0,
+        extractor: PatchExtractor | None = None,
     ) -> Patches:
-        """World-frame 3-D patches of object ``label`` (None: whole images) from all cameras."""
+        """World-frame 3-D patches of object ``label`` (None: whole images) from all cameras,
+        by ``extractor`` (default ``PatchExtractor()``)."""
         parts = []
         for view in observation_views(obs, self.cameras).values():
             try:
-                parts.append(view_patches(view, label, config))
+                parts.append(view_patches(view, label, extractor))
             except ValueError:
                 continue  # not visible from this camera
         if not parts:

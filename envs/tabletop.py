@@ -14,7 +14,8 @@ world (MuJoCo's WXYZ is converted here, at the boundary); images and cameras fol
 ``vistask.vision`` (OpenCV: row 0 at the top, camera x right, y down, z forward).
 Segmentation labels are indices into ``Scene.objects`` (0 = target), -1 for everything else.
 
-Rendering uses MUJOCO_GL (set to "egl" here when unset). robosuite's
+The table, the cameras and the rendering come from ``vistask.envs.scene`` (shared with the
+grasp-trial environment). Rendering uses MUJOCO_GL (set to "egl" here when unset). robosuite's
 ``camera_utils`` needs h5py, which is not a dependency, so its three camera formulas are
 re-done in ``vistask.vision.camera`` and checked against it in the tests when h5py exists.
 """
@@ -34,7 +35,6 @@ import mujoco
 import numpy as np
 import roma
 import torch
-from robosuite.models.arenas import TableArena
 from robosuite.models.objects import (
     BoxObject,
     BreadObject,
@@ -48,32 +48,27 @@ from robosuite.models.tasks import ManipulationTask
 from robosuite.utils.binding_utils import MjRenderContextOffscreen, MjSim
 from torch import Tensor
 
+from vistask.envs.scene import (
+    CAMERAS,
+    TABLE_TOP_Z,
+    CameraSpec,
+    add_cameras,
+    body_bounds,
+    render_view,
+    sim_camera,
+    table_arena,
+    wxyz_to_xyzw,
+    xyzw_to_wxyz,
+)
 from vistask.vision import (
     Camera,
-    PatchConfig,
     Patches,
+    PatchExtractor,
     RGBDView,
     Symmetry,
-    depth_buffer_to_metres,
-    intrinsics_from_fovy,
-    look_at,
     object_patch_set,
     view_patches,
 )
-
-TABLE_TOP_Z = 0.8
-TABLE_SIZE = (0.8, 0.8, 0.05)
-TABLE_CENTRE = (0.0, 0.0, TABLE_TOP_Z)
-# MuJoCo cameras look along their -z with y up; OpenCV cameras along +z with y down.
-_MJ_TO_CV = np.diag([1.0, -1.0, -1.0])
-
-
-def _wxyz_to_xyzw(q: np.ndarray) -> np.ndarray:
-    return np.asarray(q)[..., [1, 2, 3, 0]]
-
-
-def _xyzw_to_wxyz(q: np.ndarray) -> np.ndarray:
-    return np.asarray(q)[..., [3, 0, 1, 2]]
 
 
 @dataclass(frozen=True)
@@ -135,53 +130,6 @@ def _spec(kind: str) -> ObjectSpec:
     return OBJECTS[kind]
 
 
-@dataclass(frozen=True)
-class CameraSpec:
-    """A fixed camera at ``eye`` looking at ``target``.
-
-    Attributes:
-        name: MuJoCo camera name.
-        eye: (3,) position in the world.
-        target: (3,) point on the optical axis.
-        fovy: vertical field of view in degrees.
-        up: world direction that appears up in the image.
-    """
-
-    name: str
-    eye: tuple[float, float, float]
-    target: tuple[float, float, float] = (0.0, 0.0, TABLE_TOP_Z + 0.05)
-    fovy: float = 45.0
-    up: tuple[float, float, float] = (0.0, 0.0, 1.0)
-
-
-def _ring(
-    name: str, azimuth_deg: float, distance: float = 0.6, elevation_deg: float = 45.0
-) -> CameraSpec:
-    a, e = math.radians(azimuth_deg), math.radians(elevation_deg)
-    target = (0.0, 0.0, TABLE_TOP_Z + 0.05)
-    eye = (
-        distance * math.cos(e) * math.cos(a),
-        distance * math.cos(e) * math.sin(a),
-        target[2] + distance * math.sin(e),
-    )
-    return CameraSpec(name, eye, target)
-
-
-# Close-up cameras around the table centre (robosuite's own "frontview", "birdview",
-# "agentview" and "sideview" are also available, but see the table from farther away).
-CAMERAS: dict[str, CameraSpec] = {
-    spec.name: spec
-    for spec in (
-        _ring("front", 0.0),
-        _ring("left", 90.0),
-        _ring("back", 180.0),
-        _ring("right", 270.0),
-        CameraSpec("top", (0.0, 0.0, TABLE_TOP_Z + 0.65), up=(1.0, 0.0, 0.0)),
-    )
-}
-ROBOSUITE_CAMERAS = ("frontview", "birdview", "agentview", "sideview")
-
-
 @dataclass
 class Scene:
     """A rendered tabletop scene with ground truth.
@@ -222,12 +170,8 @@ class TabletopWorld:
     """
 
     def __init__(self, extra_cameras: Sequence[CameraSpec] = ()) -> None:
-        arena = TableArena(table_full_size=TABLE_SIZE, table_offset=TABLE_CENTRE)
-        for spec in (*CAMERAS.values(), *extra_cameras):
-            cv = look_at(torch.tensor(spec.eye), torch.tensor(spec.target), torch.tensor(spec.up))
-            R_mj = cv[:3, :3].numpy() @ _MJ_TO_CV
-            quat = _xyzw_to_wxyz(roma.rotmat_to_unitquat(torch.from_numpy(R_mj)).numpy())
-            arena.set_camera(spec.name, spec.eye, quat, camera_attribs={"fovy": str(spec.fovy)})
+        arena = table_arena()
+        add_cameras(arena, (*CAMERAS.values(), *extra_cameras))
         self.kinds = list(OBJECTS)
         objects = [OBJECTS[k].make(k) for k in self.kinds]
         task = ManipulationTask(mujoco_arena=arena, mujoco_robots=[], mujoco_objects=objects)
@@ -251,7 +195,6 @@ class TabletopWorld:
         self._body = body
         root_of_geom = m.body_rootid[m.geom_bodyid]
         self._geoms = {k: np.nonzero(root_of_geom == body[k])[0] for k in self.kinds}
-        self._geom_root = root_of_geom
         self._contype = m.geom_contype.copy()
         self._conaffinity = m.geom_conaffinity.copy()
         self._group = m.geom_group.copy()
@@ -261,20 +204,9 @@ class TabletopWorld:
 
     def _object_bounds(self, kind: str) -> Tensor:
         """(2, 3) object-frame AABB of the object's visual geoms (from MuJoCo's geom AABBs)."""
-        m, d = self._m, self._d
-        mujoco.mj_forward(m, d)
-        R_b, t_b = d.xmat[self._body[kind]].reshape(3, 3), d.xpos[self._body[kind]]
-        corners = np.array(np.meshgrid([-1, 1], [-1, 1], [-1, 1], indexing="ij")).reshape(3, -1).T
-        points = []
-        for g in self._geoms[kind]:
-            if self._group[g] != 1:
-                continue
-            centre, half = m.geom_aabb[g, :3], m.geom_aabb[g, 3:]
-            local = centre + corners * half  # geom frame
-            world = local @ d.geom_xmat[g].reshape(3, 3).T + d.geom_xpos[g]
-            points.append((world - t_b) @ R_b)
-        pts = np.concatenate(points)
-        return torch.tensor(np.stack([pts.min(0), pts.max(0)]), dtype=torch.float32)
+        visual = [g for g in self._geoms[kind] if self._group[g] == 1]
+        bounds = body_bounds(self._m, self._d, self._body[kind], visual)
+        return torch.tensor(bounds, dtype=torch.float32)
 
     def arrange(self, kinds: Sequence[str], poses: Tensor, max_steps: int = 1500) -> Tensor:
         """Put objects at ``poses`` (others parked out of sight) and let them settle.
@@ -304,7 +236,7 @@ class TabletopWorld:
             m.body_gravcomp[self._body[k]] = 0.0 if used else 1.0
             if used:
                 pose = poses[list(kinds).index(k)].double().numpy()
-                qpos = np.r_[pose[:3], _xyzw_to_wxyz(pose[3:])]
+                qpos = np.r_[pose[:3], xyzw_to_wxyz(pose[3:])]
             else:  # parked: floating below the floor, no contacts, no gravity, invisible
                 qpos = np.r_[0.0, 5.0 + i, -1.0, 1.0, 0.0, 0.0, 0.0]
             d.qpos[self._qadr[k] : self._qadr[k] + 7] = qpos
@@ -321,26 +253,14 @@ class TabletopWorld:
         """(7,) current world pose of ``kind``'s body (XYZW)."""
         _spec(kind)
         b = self._body[kind]
-        q = _wxyz_to_xyzw(self._d.xquat[b])
+        q = wxyz_to_xyzw(self._d.xquat[b])
         return torch.tensor(np.r_[self._d.xpos[b], q], dtype=torch.float32)
 
     # -- rendering ----------------------------------------------------------------------
 
     def camera(self, name: str, height: int = 256, width: int = 256) -> Camera:
         """The camera ``name`` (OpenCV convention) for images of ``height`` x ``width``."""
-        cam_id = self._camera_id(name)
-        T = np.eye(4)
-        T[:3, :3] = self._d.cam_xmat[cam_id].reshape(3, 3) @ _MJ_TO_CV
-        T[:3, 3] = self._d.cam_xpos[cam_id]
-        K = intrinsics_from_fovy(float(self._m.cam_fovy[cam_id]), height, width)
-        return Camera(K, torch.from_numpy(T), height, width, name)
-
-    def _camera_id(self, name: str) -> int:
-        cam_id = mujoco.mj_name2id(self._m, mujoco.mjtObj.mjOBJ_CAMERA, name)
-        if cam_id < 0:
-            names = [self._m.camera(i).name for i in range(self._m.ncam)]
-            raise ValueError(f"unknown camera {name!r}; known: {names}")
-        return cam_id
+        return sim_camera(self._m, self._d, name, height, width)
 
     def render(
         self, name: str, kinds: Sequence[str], height: int = 256, width: int = 256
@@ -354,27 +274,7 @@ class TabletopWorld:
         """
         if height <= 0 or width <= 0 or height > 2048 or width > 2048:
             raise ValueError(f"image size must be in 1..2048, got {height}x{width}")
-        camera = self.camera(name, height, width)
-        rgb, buffer = self.sim.render(width=width, height=height, camera_name=name, depth=True)
-        seg = self.sim.render(width=width, height=height, camera_name=name, segmentation=True)
-        label_of_root = np.full(self._m.nbody, -1, dtype=np.int64)
-        for i, k in enumerate(kinds):
-            label_of_root[self._body[k]] = i
-        geom_label = np.r_[label_of_root[self._geom_root], -1]  # last entry: "no geom"
-        is_geom = seg[..., 0] == int(mujoco.mjtObj.mjOBJ_GEOM)
-        labels = geom_label[np.where(is_geom, seg[..., 1], -1)]
-        extent = self._m.stat.extent
-        depth = depth_buffer_to_metres(
-            torch.from_numpy(buffer[::-1].copy()),
-            self._m.vis.map.znear * extent,
-            self._m.vis.map.zfar * extent,
-        )
-        return RGBDView(
-            rgb=torch.from_numpy(rgb[::-1].copy()),
-            depth=depth.float(),
-            camera=camera,
-            segmentation=torch.from_numpy(labels[::-1].copy()),
-        )
+        return render_view(self.sim, name, height, width, [self._body[k] for k in kinds])
 
     # -- scenes -------------------------------------------------------------------------
 
@@ -488,8 +388,8 @@ def make_scene(
 ) -> Scene:
     """Generate a tabletop scene (see ``TabletopWorld.generate``); reproducible from ``seed``.
 
-    ``cameras`` may name built-in cameras (``CAMERAS``, ``ROBOSUITE_CAMERAS``) or give
-    ``CameraSpec`` objects.
+    ``cameras`` may name built-in cameras (``vistask.envs.scene.CAMERAS`` and
+    ``ROBOSUITE_CAMERAS``) or give ``CameraSpec`` objects.
     """
     extra = tuple(c for c in cameras if isinstance(c, CameraSpec))
     names = [c.name if isinstance(c, CameraSpec) else c for c in cameras]
@@ -535,12 +435,13 @@ def object_patches(
     cameras: Sequence[str] = ("front", "left", "back", "right", "top"),
     image_size: int = 256,
     tipped: bool = False,
-    config: PatchConfig | None = None,
+    extractor: PatchExtractor | None = None,
     voxel: float | None = None,
 ) -> Patches:
-    """The object-frame patch set of ``kind`` merged from ``object_views`` (see there)."""
+    """The object-frame patch set of ``kind`` merged from ``object_views`` (see there), by
+    ``extractor`` (default ``PatchExtractor()``), one patch per ``voxel`` when given."""
     views, poses = object_views(kind, n_rotations, cameras, image_size, tipped)
-    return object_patch_set(views, poses, label=0, config=config, voxel=voxel)
+    return object_patch_set(views, poses, label=0, extractor=extractor, voxel=voxel)
 
 
 def benchmark_scenes(
@@ -549,9 +450,10 @@ def benchmark_scenes(
     n_distractors: int | None = None,
     cameras: Sequence[str] = ("front",),
     image_size: int = 256,
-    config: PatchConfig | None = None,
+    extractor: PatchExtractor | None = None,
 ) -> dict[str, float]:
-    """Time scene generation (sample + settle + render) and patch extraction per scene.
+    """Time scene generation (sample + settle + render) and patch extraction per scene
+    (``extractor``, default ``PatchExtractor()``).
 
     The first call in a process also builds the world (model, GL context); that one-off cost
     is reported separately as ``setup_seconds``.
@@ -571,7 +473,7 @@ def benchmark_scenes(
         scene = make_scene(seed, target, n_distractors, cameras, image_size)
         mid = time.perf_counter()
         for view in scene.views.values():
-            patches = view_patches(view, config=config)
+            patches = view_patches(view, extractor=extractor)
             counts.append(len(patches))
             target_counts.append(len(patches.in_mask(view.mask(0))))
         patch_s.append(time.perf_counter() - mid)

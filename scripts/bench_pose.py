@@ -11,30 +11,38 @@ Markdown table), DIR/pictures/ (estimates drawn over the images) and TensorBoard
 from __future__ import annotations
 
 import argparse
+import inspect
 from pathlib import Path
 
 import torch
-from torch.utils.tensorboard import SummaryWriter
 
-from vistask.runs import run_dir
-from vistask.objects import BenchConfig, NBPConfig, run_benchmark, write_results
+from vistask.experiments.pose import PoseBenchmark, write_results
+from vistask.objects import NBP
+from vistask.runs import run_dir, tensorboard
 
 
 def main() -> None:
+    bench_defaults = {k: p.default for k, p in inspect.signature(PoseBenchmark).parameters.items()}
+    nbp_defaults = {k: p.default for k, p in inspect.signature(NBP).parameters.items()}
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, default=None, help="output directory")
-    parser.add_argument("--objects", nargs="+", default=list(BenchConfig.objects))
-    parser.add_argument("--scenes", type=int, default=10, help="scenes per object and condition")
+    parser.add_argument("--objects", nargs="+", default=list(bench_defaults["objects"]))
+    parser.add_argument(
+        "--scenes",
+        type=int,
+        default=bench_defaults["n_scenes"],
+        help="scenes per object and condition",
+    )
     parser.add_argument("--quick", action="store_true", help="2 scenes per object and condition")
-    parser.add_argument("--seed", type=int, default=BenchConfig.seed, help="first scene seed")
-    parser.add_argument("--particles", type=int, default=NBPConfig.n_particles)
+    parser.add_argument("--seed", type=int, default=bench_defaults["seed"], help="first scene seed")
+    parser.add_argument("--particles", type=int, default=nbp_defaults["n_particles"])
     parser.add_argument(
         "--refine-iters",
         type=int,
-        default=NBPConfig.refine_iters,
+        default=nbp_defaults["refine_iters"],
         help="top-down refinement iterations of NBP's hypotheses (0: NBP modes as they are)",
     )
-    parser.add_argument("--methods", nargs="+", default=["nbp", "open3d"])
+    parser.add_argument("--methods", nargs="+", default=list(bench_defaults["methods"]))
     parser.add_argument(
         "--threads", type=int, default=1, help="torch CPU threads (1: no contention)"
     )
@@ -43,16 +51,16 @@ def main() -> None:
     args = parser.parse_args()
     out = run_dir("bench_pose", args.out)
     torch.set_num_threads(args.threads)
-    cfg = BenchConfig(
-        objects=tuple(args.objects),
+    bench = PoseBenchmark(
+        objects=args.objects,
         n_scenes=2 if args.quick else args.scenes,
         seed=args.seed,
         device=args.device,
-        methods=tuple(args.methods),
-        nbp=NBPConfig(n_particles=args.particles, refine_iters=args.refine_iters),
+        methods=args.methods,
+        nbp=NBP(n_particles=args.particles, refine_iters=args.refine_iters),
     )
-    with SummaryWriter(str(out)) as writer:
-        summary = run_benchmark(cfg, out, writer, pictures=args.pictures)
+    with tensorboard(out) as writer:
+        summary = bench.run(out, writer, pictures=args.pictures)
     print(write_results(summary, out, "Pose estimation: NBP vs Open3D"))
     print(f"wrote {out / 'summary.json'}")
 

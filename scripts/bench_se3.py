@@ -8,13 +8,12 @@ speedup_vs_numpy (CPU) and cuda_* figures when CUDA is available.
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 import torch
 
-from vistask.runs import run_dir
 from vistask.experiments.bench_se3 import run_benchmark
+from vistask.runs import print_table, run_dir, write_summary
 
 
 def main() -> None:
@@ -45,11 +44,8 @@ def main() -> None:
         prefix = "" if device == "cpu" else "cuda_"
         summary.update({prefix + key: value for key, value in figures.items()})
 
-    print(f"{'figure':<40} {'value':>14}")
-    for key, value in summary.items():
-        print(f"{key:<40} {value:>14.4g}")
-    (out / "summary.json").write_text(json.dumps(summary, indent=2))
-    print(f"wrote {out / 'summary.json'}")
+    print_table(summary)
+    print(f"wrote {write_summary(out, summary)}")
 
 
 if __name__ == "__main__":

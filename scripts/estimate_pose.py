@@ -10,29 +10,24 @@ camera's image at the estimated pose (paper Fig. 14).
 from __future__ import annotations
 
 import argparse
+import inspect
 from pathlib import Path
 
 import torch
-from torch.utils.tensorboard import SummaryWriter
 
-from vistask.runs import run_dir
-from vistask.objects import (
-    CONDITIONS,
-    BenchConfig,
-    NBPConfig,
-    learn_model,
-    run_benchmark,
-    write_results,
-)
+from vistask.experiments.pose import CONDITIONS, PoseBenchmark, write_results
+from vistask.objects import NBP
+from vistask.runs import run_dir, tensorboard
 
 
 def main() -> None:
+    nbp_defaults = {k: p.default for k, p in inspect.signature(NBP).parameters.items()}
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, default=None, help="output directory")
     parser.add_argument("--object", default="cereal", help="object kind")
     parser.add_argument("--scenes", type=int, default=5)
     parser.add_argument("--condition", default="clutter", choices=sorted(CONDITIONS))
-    parser.add_argument("--particles", type=int, default=NBPConfig.n_particles)
+    parser.add_argument("--particles", type=int, default=nbp_defaults["n_particles"])
     parser.add_argument(
         "--threads", type=int, default=1, help="torch CPU threads (1: no contention)"
     )
@@ -41,20 +36,18 @@ def main() -> None:
     args = parser.parse_args()
     out = run_dir("estimate_pose", args.out)
     torch.set_num_threads(args.threads)
-    cfg = BenchConfig(
+    bench = PoseBenchmark(
         objects=(args.object,),
         n_scenes=args.scenes,
         conditions=(args.condition,),
         methods=("nbp",),
         device=args.device,
-        nbp=NBPConfig(n_particles=args.particles),
+        nbp=NBP(n_particles=args.particles),
     )
-    model = learn_model(args.object, cfg.cameras, cfg.n_rotations, cfg.image_size, cfg.voxel)
+    model = bench.learn_model(args.object)
     model.save(out / "model.pt")
-    with SummaryWriter(str(out)) as writer:
-        summary = run_benchmark(
-            cfg, out, writer, pictures=args.pictures, models={args.object: model}
-        )
+    with tensorboard(out) as writer:
+        summary = bench.run(out, writer, pictures=args.pictures, models={args.object: model})
     summary["model"] = {
         "structure": repr(model.structure()),
         "patches": len(model.patches),

@@ -12,33 +12,39 @@ densities, the learner (all trials) and a picture of both densities (DIR/<object
 from __future__ import annotations
 
 import argparse
+import inspect
 import os
 from pathlib import Path
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
 from vistask.experiments.grasps import (
-    ExperimentConfig,
+    HYPOTHESES,
+    GraspExperiment,
     format_nbp_table,
     format_table,
-    run_experiment,
     run_nbp,
 )
 from vistask.runs import run_dir
 
 
 def main() -> None:
+    defaults = {k: p.default for k, p in inspect.signature(GraspExperiment).parameters.items()}
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, default=None)
-    parser.add_argument("--objects", nargs="+", default=["box", "can", "bread"])
-    parser.add_argument("--hypothesis", choices=["feature", "demo"], default="feature")
-    parser.add_argument("--cycles", type=int, default=5)
-    parser.add_argument("--trials-per-cycle", type=int, default=60)
-    parser.add_argument("--eval-trials", type=int, default=100)
-    parser.add_argument("--num-envs", type=int, default=2)
-    parser.add_argument("--c-rel", type=float, default=1.0, help="weight offset c / mean q")
-    parser.add_argument("--candidates", type=int, default=10, help="K of best-of-K evaluation")
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--objects", nargs="+", default=list(defaults["objects"]))
+    parser.add_argument("--hypothesis", choices=HYPOTHESES, default=defaults["hypothesis"])
+    parser.add_argument("--cycles", type=int, default=defaults["cycles"])
+    parser.add_argument("--trials-per-cycle", type=int, default=defaults["trials_per_cycle"])
+    parser.add_argument("--eval-trials", type=int, default=defaults["eval_trials"])
+    parser.add_argument("--num-envs", type=int, default=defaults["num_envs"])
+    parser.add_argument(
+        "--c-rel", type=float, default=defaults["c_rel"], help="weight offset c / mean q"
+    )
+    parser.add_argument(
+        "--candidates", type=int, default=defaults["candidates"], help="K of best-of-K evaluation"
+    )
+    parser.add_argument("--seed", type=int, default=defaults["seed"])
     parser.add_argument("--quick", action="store_true", help="2 cycles of 10, 10 eval trials")
     parser.add_argument(
         "--nbp-trials",
@@ -55,8 +61,8 @@ def main() -> None:
     if args.quick:
         args.cycles, args.trials_per_cycle, args.eval_trials = 2, 10, 10
     out = run_dir("learn_grasps", args.out)
-    config = ExperimentConfig(
-        objects=tuple(args.objects),
+    experiment = GraspExperiment(
+        objects=args.objects,
         hypothesis=args.hypothesis,
         cycles=args.cycles,
         trials_per_cycle=args.trials_per_cycle,
@@ -67,10 +73,10 @@ def main() -> None:
         seed=args.seed,
     )
     if not args.nbp_only:
-        summary = run_experiment(config, out)
+        summary = experiment.run(out)
         print(format_table(summary))
     if args.nbp_trials or args.nbp_only:
-        nbp = run_nbp(out, config.objects, args.nbp_trials or 10, config.candidates)
+        nbp = run_nbp(out, experiment.objects, args.nbp_trials or 10, experiment.candidates)
         print(format_nbp_table(nbp))
     print(f"wrote {out / 'summary.json'}")
 

@@ -10,7 +10,6 @@ target's object-frame patch set merged from several views, as a 3-D scatter).
 from __future__ import annotations
 
 import argparse
-import json
 import time
 from pathlib import Path
 
@@ -22,7 +21,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 
 from vistask.envs.tabletop import OBJECTS, benchmark_scenes, make_scene, object_patches
-from vistask.runs import run_dir
+from vistask.runs import print_table, run_dir, write_summary
 from vistask.vision import view_patches
 from vistask.vision.draw import draw_patches
 
@@ -58,13 +57,8 @@ def main() -> None:
     summary["object_patch_set_size"] = len(model)
     _scatter(model, out / "object_patches.png", args.target)
 
-    print(f"{'figure':<32} {'value':>14}")
-    for key, value in summary.items():
-        print(
-            f"{key:<32} {value:>14.4g}" if isinstance(value, float) else f"{key:<32} {value!s:>14}"
-        )
-    (out / "summary.json").write_text(json.dumps(summary, indent=2))
-    print(f"wrote {out / 'summary.json'}")
+    print_table(summary)
+    print(f"wrote {write_summary(out, summary)}")
 
 
 def _scatter(patches, path: Path, title: str) -> None:

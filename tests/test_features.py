@@ -9,8 +9,8 @@ import torch
 
 from vistask.envs import VisualMazeEnv
 from vistask.features import SiftExtractor, VisualFeatureExtractor
-from vistask.kmeans import kmeans
 from vistask.features.vocabulary import SMALL_BATCH, CoarseGroups, grouped_kmeans
+from vistask.kmeans import kmeans
 
 
 @pytest.fixture(scope="module")
@@ -22,7 +22,7 @@ def percepts() -> list[np.ndarray]:
 
 @pytest.fixture(scope="module")
 def extractor(percepts) -> VisualFeatureExtractor:
-    return VisualFeatureExtractor.fit(percepts, n_words=256, iters=5)
+    return VisualFeatureExtractor.fit(percepts, n_words=256, iters=5, groups=0)
 
 
 def test_sift_finds_keypoints_inside_the_image(percepts):
@@ -107,13 +107,6 @@ def test_vocabulary_round_trip(tmp_path, extractor, percepts):
     assert torch.equal(loaded.presence(percepts), extractor.presence(percepts))
 
 
-def test_soft_assignment_adds_features_and_changes_the_fingerprint(extractor, percepts):
-    soft = VisualFeatureExtractor(extractor.keypoints, extractor.centroids, soft_ratio=1.3)
-    hard, softer = extractor.presence(percepts), soft.presence(percepts)
-    assert (softer | hard).equal(softer) and softer.sum() > hard.sum()
-    assert soft.fingerprint != extractor.fingerprint
-
-
 def test_words_are_the_nearest_prototypes_within_max_distance(extractor, percepts):
     detected = extractor.keypoints.batch(percepts[:20])
     x = torch.from_numpy(np.concatenate([k.descriptors for k in detected]))
@@ -174,18 +167,13 @@ def test_grouped_kmeans_shares_the_words_by_descriptor_count():
     assert torch.equal(owner, group_of)
 
 
-def test_grouped_vocabulary_round_trip_soft_words_and_errors(tmp_path, grouped, percepts):
+def test_grouped_vocabulary_round_trip_and_errors(tmp_path, grouped, percepts):
     grouped.save(tmp_path / "vocab.pt")
     loaded = VisualFeatureExtractor.load(tmp_path / "vocab.pt")
     assert loaded.fingerprint == grouped.fingerprint and loaded.groups.probes == 2
     assert torch.equal(loaded.presence(percepts), grouped.presence(percepts))
     flat = VisualFeatureExtractor(grouped.keypoints, grouped.centroids)
     assert flat.fingerprint != grouped.fingerprint
-    soft = VisualFeatureExtractor(
-        grouped.keypoints, grouped.centroids, soft_ratio=1.3, groups=grouped.groups
-    )
-    hard, softer = grouped.presence(percepts), soft.presence(percepts)
-    assert (softer | hard).equal(softer) and softer.sum() > hard.sum()
     with pytest.raises(ValueError, match="group of each"):
         VisualFeatureExtractor(grouped.keypoints, grouped.centroids[:100], groups=grouped.groups)
     with pytest.raises(ValueError, match="probes"):

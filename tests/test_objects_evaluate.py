@@ -5,7 +5,7 @@ import math
 
 import pytest
 
-from vistask.objects import BenchConfig, markdown_table, summarize, write_results
+from vistask.experiments.pose import PoseBenchmark, markdown_table, summarize, write_results
 
 
 def _record(method: str, cond: str, kind: str, t: float, r: float, s: float) -> dict:
@@ -56,6 +56,6 @@ def test_results_files_are_valid_json_and_markdown(records: list[dict], tmp_path
 
 def test_bad_bench_configs_are_clear_errors() -> None:
     with pytest.raises(ValueError, match="unknown conditions"):
-        BenchConfig(conditions=("foggy",))
+        PoseBenchmark(conditions=("foggy",))
     with pytest.raises(ValueError, match="methods"):
-        BenchConfig(methods=("icp",))
+        PoseBenchmark(methods=("icp",))

@@ -3,7 +3,7 @@
 import pytest
 import torch
 
-from vistask.objects import ModelConfig, ObjectModel
+from vistask.objects import ObjectModel
 from vistask.objects.synthetic import synthetic_object
 from vistask.se3 import SE3KDE, random_poses
 from vistask.vision import Patches
@@ -11,7 +11,7 @@ from vistask.vision import Patches
 
 @pytest.fixture(scope="module")
 def model() -> ObjectModel:
-    return ObjectModel.learn(synthetic_object(), "chair", ModelConfig(n_classes=6, seed=3))
+    return ObjectModel.learn(synthetic_object(), "chair", n_classes=6, seed=3)
 
 
 def _spread(points: torch.Tensor) -> float:
@@ -19,7 +19,7 @@ def _spread(points: torch.Tensor) -> float:
 
 
 def test_same_seed_gives_the_same_hierarchy(model: ObjectModel) -> None:
-    again = ObjectModel.learn(synthetic_object(), "chair", ModelConfig(n_classes=6, seed=3))
+    again = ObjectModel.learn(synthetic_object(), "chair", n_classes=6, seed=3)
     assert again.structure() == model.structure()
     torch.testing.assert_close(again.centres, model.centres)
     assert torch.equal(again.labels, model.labels)
@@ -87,7 +87,7 @@ def test_save_load_round_trip_keeps_the_grasp_density(model: ObjectModel, tmp_pa
     finally:
         model.grasp_density = None
     assert back.structure() == model.structure()
-    assert back.config == model.config
+    assert back.params == model.params
     for a, b in zip(back.features, model.features, strict=True):
         assert (a.children, a.parent, a.appearance) == (b.children, b.parent, b.appearance)
         if b.potential is not None:

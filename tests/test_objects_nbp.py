@@ -3,17 +3,17 @@
 import pytest
 import torch
 
-from vistask.objects import ModelConfig, NBPConfig, ObjectModel, infer, multiply, push_up
+from vistask.objects import NBP, ObjectModel, multiply, push_up
 from vistask.objects.synthetic import synthetic_object, synthetic_scene
 from vistask.se3 import SE3KDE, compose, inverse, random_poses, rotation_distance
 from vistask.vision import Patches, pose_error
 
-FAST = NBPConfig(n_particles=400, mode_starts=24)
+FAST = NBP(n_particles=400, mode_starts=24)
 
 
 @pytest.fixture(scope="module")
 def model() -> ObjectModel:
-    return ObjectModel.learn(synthetic_object(), "chair", ModelConfig(n_classes=6))
+    return ObjectModel.learn(synthetic_object(), "chair", n_classes=6)
 
 
 def test_push_up_composes_with_the_inverse_potential() -> None:
@@ -47,7 +47,7 @@ def test_nbp_recovers_the_pose_in_clutter(model: ObjectModel, seed: int) -> None
     g = torch.Generator().manual_seed(100 + seed)
     pose = random_poses(1, 0.1, generator=g)[0]
     scene = synthetic_scene(pose, n_clutter=300, keep=0.6, seed=seed)
-    result = infer(model, scene, FAST, seed=seed)
+    result = FAST.infer(model, scene, seed=seed)
     t_err, r_err = pose_error(result.pose, pose)
     assert t_err < 0.005 and r_err < 3.0
     assert result.scores[0] >= result.scores.max()
@@ -62,7 +62,7 @@ def test_two_instances_give_two_modes(model: ObjectModel) -> None:
     scene = Patches.cat(
         [synthetic_scene(p, n_clutter=0, keep=0.8, seed=i) for i, p in enumerate(poses)]
     )
-    result = infer(model, scene, NBPConfig(n_particles=800, n_modes=4), seed=0)
+    result = NBP(n_particles=800, n_modes=4).infer(model, scene, seed=0)
     for true in poses:
         t_err, r_err = pose_error(result.poses[:2], true)
         assert (t_err < 0.01).any() and (r_err[t_err < 0.01] < 5.0).any()
@@ -71,7 +71,7 @@ def test_two_instances_give_two_modes(model: ObjectModel) -> None:
 def test_top_down_pass_gives_a_belief_for_every_feature(model: ObjectModel) -> None:
     pose = random_poses(1, 0.1, generator=torch.Generator().manual_seed(3))[0]
     scene = synthetic_scene(pose, n_clutter=50, seed=3)
-    result = infer(model, scene, NBPConfig(n_particles=300, top_down=True), seed=0)
+    result = NBP(n_particles=300, top_down=True).infer(model, scene, seed=0)
     assert set(result.beliefs) == set(range(len(model.features)))
     # The top-down belief of a primitive feature lies on the object's instances.
     leaf = model.leaves()[0]
@@ -84,9 +84,9 @@ def test_top_down_pass_gives_a_belief_for_every_feature(model: ObjectModel) -> N
 def test_empty_or_foreign_scenes_are_clear_errors(model: ObjectModel) -> None:
     obj = synthetic_object()
     with pytest.raises(ValueError, match="empty scene"):
-        infer(model, obj.select(torch.zeros(len(obj), dtype=torch.bool)), FAST)
+        FAST.infer(model, obj.select(torch.zeros(len(obj), dtype=torch.bool)))
     grey = Patches(obj.positions, obj.directions, torch.full_like(obj.colors, 0.5), obj.normals)
     with pytest.raises(ValueError, match="no scene patch matches"):
-        infer(model, grey, FAST)
+        FAST.infer(model, grey)
     with pytest.raises(ValueError, match="normals"):
-        infer(model, Patches(obj.positions, obj.directions, obj.colors), FAST)
+        FAST.infer(model, Patches(obj.positions, obj.directions, obj.colors))

@@ -3,7 +3,7 @@
 import pytest
 import torch
 
-from vistask.objects import RegistrationConfig, register
+from vistask.objects import Open3DRegistration
 from vistask.se3 import apply, random_poses
 from vistask.vision import pose_error
 
@@ -30,7 +30,7 @@ def test_open3d_recovers_a_rigid_transform(seed: int) -> None:
     source = _asymmetric_surface(3000, seed)
     pose = random_poses(1, 0.2, generator=torch.Generator().manual_seed(seed))[0]
     target = apply(pose, source) + 0.0005 * torch.randn(source.shape)
-    result = register(source, target, config=RegistrationConfig(voxel=0.004), seed=seed)
+    result = Open3DRegistration(voxel=0.004).register(source, target, seed=seed)
     t_err, r_err = pose_error(result.pose, pose)
     assert t_err < 0.005 and r_err < 3.0
     assert result.fitness > 0.8
@@ -38,6 +38,7 @@ def test_open3d_recovers_a_rigid_transform(seed: int) -> None:
 
 def test_empty_point_clouds_are_clear_errors() -> None:
     points = _asymmetric_surface(300, 0)
+    register = Open3DRegistration().register
     with pytest.raises(ValueError, match="empty point cloud"):
         register(points, torch.zeros(0, 3))
     with pytest.raises(ValueError, match="empty point cloud"):

@@ -10,6 +10,7 @@ from vistask.se3 import (
     R3S2KDE,
     SE3KDE,
     cross_validate_bandwidth,
+    fit_density,
     project_se3_to_r3s2,
     rule_of_thumb_bandwidth,
     select_bandwidth,
@@ -69,9 +70,9 @@ def test_cross_validation_picks_the_held_out_best() -> None:
 
 def test_fit_and_errors() -> None:
     samples = _samples(200, 4, 0.02, 0.2)
-    density = SE3KDE.fit(samples, method="cv", max_points=100)
+    density = fit_density(samples, method="cv", max_points=100)
     assert isinstance(density, SE3KDE) and density.sigma_t > 0
-    edges = R3S2KDE.fit(project_se3_to_r3s2(samples, 0))
+    edges = fit_density(project_se3_to_r3s2(samples, 0))
     assert isinstance(edges, R3S2KDE)
     with pytest.raises(ValueError, match="method"):
         select_bandwidth(samples, method="silverman")

@@ -38,7 +38,7 @@ def test_projection_takes_a_rotation_column() -> None:
 def test_se3_density_projects_to_r3s2_density() -> None:
     poses = random_poses(30, 0.05, _gen(1), dtype=torch.float64)
     density = SE3KDE(poses, torch.rand(30, generator=_gen(2)), sigma_t=0.02, sigma_r=0.4)
-    projected = density.project(axis=1)
+    projected = R3S2KDE.from_se3(density, axis=1)
     assert isinstance(projected, R3S2KDE) and projected.sigma_r == 0.4
     torch.testing.assert_close(projected.points, project_se3_to_r3s2(poses, 1))
     torch.testing.assert_close(projected.weights, density.weights)

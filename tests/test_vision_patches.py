@@ -9,9 +9,8 @@ import torch
 
 from vistask.vision import (
     Camera,
-    PatchConfig,
     Patches,
-    extract_patches,
+    PatchExtractor,
     intrinsics_from_fovy,
     look_at,
     pixel_grid,
@@ -20,6 +19,7 @@ from vistask.vision import (
 H, W = 96, 128
 DARK = torch.tensor([20, 40, 160], dtype=torch.uint8)
 BRIGHT = torch.tensor([220, 200, 60], dtype=torch.uint8)
+extract = PatchExtractor()
 
 
 def _camera(eye=(0.0, 0.0, 1.0), target=(0.0, 0.0, 0.0)) -> Camera:
@@ -47,8 +47,8 @@ def _step_image(column: int) -> torch.Tensor:
 def test_straight_edge_on_a_fronto_parallel_plane() -> None:
     camera = _camera()
     depth = torch.ones(H, W)
-    patches = extract_patches(_step_image(W // 2), depth, camera)
-    assert len(patches) >= H // PatchConfig().spacing - 4
+    patches = extract(_step_image(W // 2), depth, camera)
+    assert len(patches) >= H // extract.spacing - 4
     torch.testing.assert_close(patches.directions.norm(dim=-1), torch.ones(len(patches)))
     # The edge is the world line x = 0 on z = 0; one consistent direction along +-y.
     torch.testing.assert_close(
@@ -82,7 +82,7 @@ def test_direction_follows_a_tilted_plane() -> None:
     camera = _camera(eye=(0.2, -0.1, 1.0), target=(0.0, 0.0, 0.0))
     normal = torch.nn.functional.normalize(torch.tensor([-0.4, 0.2, 1.0]), dim=0)
     depth = _plane_depth(camera, normal, 0.0)
-    patches = extract_patches(_step_image(70), depth, camera)
+    patches = extract(_step_image(70), depth, camera)
     # The 3-D edge is where the plane meets the plane through the camera and image column 70.
     top = camera.backproject(torch.tensor([[69.5, 0.0]]), torch.ones(1))[0] - camera.position
     bottom = camera.backproject(torch.tensor([[69.5, H - 1.0]]), torch.ones(1))[0] - camera.position
@@ -102,12 +102,12 @@ def test_occluding_contour_takes_the_near_surface() -> None:
     depth = torch.full((H, W), 1.2)
     depth[30:70, 40:90] = 0.8  # a same-coloured square floating in front of a far plane
     rgb = torch.full((H, W, 3), 128, dtype=torch.uint8)
-    patches = extract_patches(rgb, depth, camera)
+    patches = extract(rgb, depth, camera)
     assert len(patches) > 20  # found from depth alone
     torch.testing.assert_close(
         patches.positions[:, 2], torch.full((len(patches),), 0.2), atol=1e-5, rtol=0
     )
-    masked = extract_patches(rgb, depth, camera, mask=depth < 1.0)
+    masked = extract(rgb, depth, camera, mask=depth < 1.0)
     assert len(masked) == len(patches)
 
 
@@ -115,20 +115,20 @@ def test_clear_errors() -> None:
     camera = _camera()
     rgb = _step_image(W // 2)
     with pytest.raises(ValueError, match="empty mask"):
-        extract_patches(rgb, torch.ones(H, W), camera, mask=torch.zeros(H, W, dtype=torch.bool))
+        extract(rgb, torch.ones(H, W), camera, mask=torch.zeros(H, W, dtype=torch.bool))
     with pytest.raises(ValueError, match="no pixel with valid depth"):
-        extract_patches(rgb, torch.full((H, W), float("nan")), camera)
+        extract(rgb, torch.full((H, W), float("nan")), camera)
     with pytest.raises(ValueError, match="no patches"):
-        extract_patches(torch.full((H, W, 3), 90, dtype=torch.uint8), torch.ones(H, W), camera)
+        extract(torch.full((H, W, 3), 90, dtype=torch.uint8), torch.ones(H, W), camera)
     with pytest.raises(ValueError, match="rgb must"):
-        extract_patches(rgb[:10], torch.ones(H, W), camera)
+        extract(rgb[:10], torch.ones(H, W), camera)
     with pytest.raises(ValueError, match="spacing"):
-        PatchConfig(spacing=0)
+        PatchExtractor(spacing=0)
 
 
 @pytest.fixture
 def patches() -> Patches:
-    return extract_patches(_step_image(W // 2), torch.ones(H, W), _camera())
+    return extract(_step_image(W // 2), torch.ones(H, W), _camera())
 
 
 def test_transform_round_trip_and_frames(patches: Patches) -> None:

@@ -186,3 +186,17 @@ def test_vector_env_rejects_bad_actions_and_masks():
             batch.step(actions)
     with pytest.raises(ValueError, match="reset_mask"):
         batch.reset(options={"reset_mask": np.array([1, 0])})
+
+
+def test_layout_seed_draws_connected_mazes_with_their_own_tapestry():
+    from vistask.envs.visual_maze import _connected
+
+    a, b = VisualMazeEnv(layout_seed=1), VisualMazeEnv(layout_seed=2)
+    assert a.geometry.obstacles != b.geometry.obstacles
+    assert not np.array_equal(a.tapestry, b.tapestry)
+    assert VisualMazeEnv(layout_seed=1).geometry == a.geometry  # the seed fixes the layout
+    for maze in (a, b):
+        assert len(maze.geometry.obstacles) == 4 and len(maze.geometry.exits) == 2
+        assert _connected(maze.geometry)
+    with pytest.raises(ValueError, match="either layout_seed or obstacles"):
+        VisualMazeEnv(layout_seed=1, obstacles=((0.1, 0.1, 0.2, 0.2),))

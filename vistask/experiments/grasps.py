@@ -14,7 +14,8 @@ from __future__ import annotations
 
 import json
 import time
-from dataclasses import asdict, dataclass
+from collections.abc import Sequence
+from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
@@ -27,6 +28,7 @@ from vistask.grasp.hypothesis import (
 )
 from vistask.grasp.learning import GraspLearner, evaluate_density
 from vistask.grasp.plots import density_figure
+from vistask.runs import tensorboard, write_summary
 from vistask.se3 import SE3KDE
 
 # Placement seeds: learning and evaluation never share a placement.
@@ -34,11 +36,47 @@ LEARN_SEED_BASE = 1_000_000
 EVAL_SEED_BASE = 9_000_000
 
 
-@dataclass
-class ExperimentConfig:
-    """Settings of one run.
+def object_patches_for(kind: str):
+    """Object-frame patches of ``kind`` from the tabletop front end (None if unavailable)."""
+    from vistask.envs.tabletop import OBJECTS, object_patches
 
-    Attributes:
+    if kind not in OBJECTS:
+        return None
+    return object_patches(kind, voxel=0.004)
+
+
+HYPOTHESES = ("feature", "demo")
+
+
+def hypothesis_density(
+    kind: str,
+    source: str,
+    bounds: torch.Tensor,
+    sigma_t: float,
+    sigma_r: float,
+    patches,
+    generator,
+) -> SE3KDE:
+    """The object-frame hypothesis density of ``kind`` from ``source`` ("feature": pairs of
+    ``patches``; "demo": the scripted teacher's grasps from the object's ``bounds``), with
+    bandwidth (sigma_t, sigma_r)."""
+    if source == "feature":
+        if patches is None:
+            raise ValueError(f"no patches for {kind!r}: use the 'demo' hypothesis")
+        return feature_hypothesis_density(patches, sigma_t, sigma_r, generator=generator)
+    if source == "demo":
+        teacher = scripted_teacher_grasps(bounds)
+        return demonstration_density(teacher, sigma_t=sigma_t, sigma_r=sigma_r, generator=generator)
+    raise ValueError(f"unknown hypothesis source {source!r}; use 'feature' or 'demo'")
+
+
+class GraspExperiment:
+    """Learn grasp densities by trial and error on a robosuite Panda, object by object.
+
+    ``GraspExperiment(objects=("box",), cycles=2).run(out)``. The arguments are kept as
+    attributes of the same names.
+
+    Args:
         objects: object kinds (``vistask.envs.grasp_trial.GRASP_OBJECTS``).
         hypothesis: "feature" (patch pairs) or "demo" (scripted expert + noise).
         cycles: learning cycles per object.
@@ -53,177 +91,191 @@ class ExperimentConfig:
         candidates: the "best of K" evaluation executes the likeliest of this many reachable
             draws (both densities are also evaluated on plain draws).
         seed: random seed of grasp draws.
+
+    Raises:
+        ValueError: no object, a hypothesis source other than ``HYPOTHESES``, a count below 1,
+            a bandwidth not positive, or c_rel negative.
     """
 
-    objects: tuple[str, ...] = ("box", "can", "bread")
-    hypothesis: str = "feature"
-    cycles: int = 5
-    trials_per_cycle: int = 60
-    eval_trials: int = 100
-    num_envs: int = 2
-    sigma_t: float = 0.01
-    sigma_r: float = 0.25
-    empirical_sigma_t: float = 0.005
-    empirical_sigma_r: float = 0.15
-    c_rel: float = 1.0
-    candidates: int = 10
-    seed: int = 0
+    def __init__(
+        self,
+        objects: Sequence[str] = ("box", "can", "bread"),
+        hypothesis: str = "feature",
+        cycles: int = 5,
+        trials_per_cycle: int = 60,
+        eval_trials: int = 100,
+        num_envs: int = 2,
+        sigma_t: float = 0.01,
+        sigma_r: float = 0.25,
+        empirical_sigma_t: float = 0.005,
+        empirical_sigma_r: float = 0.15,
+        c_rel: float = 1.0,
+        candidates: int = 10,
+        seed: int = 0,
+    ) -> None:
+        if not objects:
+            raise ValueError(f"objects must name at least one object kind, got {objects!r}")
+        if hypothesis not in HYPOTHESES:
+            raise ValueError(f"hypothesis must be one of {HYPOTHESES}, got {hypothesis!r}")
+        for name, value in (
+            ("cycles", cycles),
+            ("trials_per_cycle", trials_per_cycle),
+            ("eval_trials", eval_trials),
+            ("num_envs", num_envs),
+            ("candidates", candidates),
+        ):
+            if value < 1:
+                raise ValueError(f"{name} must be >= 1, got {value}")
+        for name, value in (
+            ("sigma_t", sigma_t),
+            ("sigma_r", sigma_r),
+            ("empirical_sigma_t", empirical_sigma_t),
+            ("empirical_sigma_r", empirical_sigma_r),
+        ):
+            if not value > 0:
+                raise ValueError(f"{name} must be positive, got {value}")
+        if c_rel < 0:
+            raise ValueError(f"c_rel must be non-negative, got {c_rel}")
+        self.objects = tuple(objects)
+        self.hypothesis = hypothesis
+        self.cycles = cycles
+        self.trials_per_cycle = trials_per_cycle
+        self.eval_trials = eval_trials
+        self.num_envs = num_envs
+        self.sigma_t = sigma_t
+        self.sigma_r = sigma_r
+        self.empirical_sigma_t = empirical_sigma_t
+        self.empirical_sigma_r = empirical_sigma_r
+        self.c_rel = c_rel
+        self.candidates = candidates
+        self.seed = seed
 
+    def learn_object(self, kind: str, out: Path, writer=None, progress=None) -> dict[str, Any]:
+        """Run hypothesis evaluation, learning and empirical evaluation for one object.
 
-def object_patches_for(kind: str):
-    """Object-frame patches of ``kind`` from the tabletop front end (None if unavailable)."""
-    from vistask.envs.tabletop import OBJECTS, object_patches
+        Args:
+            kind: object kind.
+            out: directory for this object's files (densities, learner, pictures).
+            writer: optional TensorBoard ``SummaryWriter`` (scalars under ``kind/``).
+            progress: optional tqdm bar advanced by one per trial.
 
-    if kind not in OBJECTS:
-        return None
-    return object_patches(kind, voxel=0.004)
+        Returns:
+            the object's summary: ``hypothesis_success`` and ``empirical_success`` (plain
+            draws), ``hypothesis_best_of_k_success`` and ``empirical_best_of_k_success`` (the
+            likeliest of ``candidates`` reachable draws), all on the same ``eval_trials``
+            held-out placements; ``trials`` and ``trials_per_minute`` of learning; per-cycle
+            figures.
+        """
+        from vistask.envs.grasp_trial import VectorGraspTrials
 
-
-def hypothesis_density(
-    kind: str, source: str, bounds: torch.Tensor, config: ExperimentConfig, patches, generator
-) -> SE3KDE:
-    """The object-frame hypothesis density of ``kind`` from ``source``."""
-    if source == "feature":
-        if patches is None:
-            raise ValueError(f"no patches for {kind!r}: use the 'demo' hypothesis")
-        return feature_hypothesis_density(
-            patches, config.sigma_t, config.sigma_r, generator=generator
-        )
-    if source == "demo":
-        teacher = scripted_teacher_grasps(bounds)
-        return demonstration_density(
-            teacher, sigma_t=config.sigma_t, sigma_r=config.sigma_r, generator=generator
-        )
-    raise ValueError(f"unknown hypothesis source {source!r}; use 'feature' or 'demo'")
-
-
-def learn_object(
-    kind: str, config: ExperimentConfig, out: Path, writer=None, progress=None
-) -> dict[str, Any]:
-    """Run hypothesis evaluation, learning and empirical evaluation for one object.
-
-    Args:
-        kind: object kind.
-        config: run settings.
-        out: directory for this object's files (densities, learner, pictures).
-        writer: optional TensorBoard ``SummaryWriter`` (scalars under ``kind/``).
-        progress: optional tqdm bar advanced by one per trial.
-
-    Returns:
-        the object's summary: ``hypothesis_success`` and ``empirical_success`` (plain draws),
-        ``hypothesis_best_of_k_success`` and ``empirical_best_of_k_success`` (the likeliest
-        of ``candidates`` reachable draws), all on the same ``eval_trials`` held-out
-        placements; ``trials`` and ``trials_per_minute`` of learning; per-cycle figures.
-    """
-    from vistask.envs.grasp_trial import VectorGraspTrials
-
-    out.mkdir(parents=True, exist_ok=True)
-    generator = torch.Generator().manual_seed(config.seed)
-    start = time.perf_counter()
-    runner = VectorGraspTrials(kind, config.num_envs)
-    try:
-        bounds = torch.as_tensor(runner.object_bounds, dtype=torch.float32)
-        patches = object_patches_for(kind)
-        hypothesis = hypothesis_density(kind, config.hypothesis, bounds, config, patches, generator)
-        hypothesis.save(out / "hypothesis.pt")
-        step = (lambda n: progress.update(n)) if progress is not None else None
-        eval_seeds = range(EVAL_SEED_BASE, EVAL_SEED_BASE + config.eval_trials + config.num_envs)
-
-        def evaluate(density: SE3KDE) -> dict[str, float]:
-            """Plain draws and best-of-K draws on the same held-out placements."""
-            figures = {}
-            for name, k in (("sample", 1), ("best", config.candidates)):
-                r = evaluate_density(
-                    density,
-                    runner,
-                    config.eval_trials,
-                    eval_seeds,
-                    runner.workspace,
-                    generator,
-                    step,
-                    candidates=k,
-                )
-                figures[name] = r["success_rate"]
-            return figures
-
-        hyp_eval = evaluate(hypothesis)
-
-        learner = GraspLearner(
-            hypothesis,
-            runner.workspace,
-            c_rel=config.c_rel,
-            sigma_t=config.empirical_sigma_t,
-            sigma_r=config.empirical_sigma_r,
-        )
-        n = config.trials_per_cycle
-        for k in range(config.cycles):
-            base = LEARN_SEED_BASE + 100_000 * k
-            stats = learner.run_cycle(
-                runner, n, range(base, base + n + config.num_envs), generator, step
+        out.mkdir(parents=True, exist_ok=True)
+        generator = torch.Generator().manual_seed(self.seed)
+        start = time.perf_counter()
+        runner = VectorGraspTrials(kind, self.num_envs)
+        try:
+            bounds = torch.as_tensor(runner.object_bounds, dtype=torch.float32)
+            patches = object_patches_for(kind)
+            hypothesis = hypothesis_density(
+                kind, self.hypothesis, bounds, self.sigma_t, self.sigma_r, patches, generator
             )
-            if writer is not None:
-                for name in ("success_rate", "effective_sample_size", "trials", "particles"):
-                    writer.add_scalar(f"{kind}/{name}", getattr(stats, name), k)
-                writer.add_scalar(f"{kind}/cumulative_trials", len(learner.trials), k)
-        learner.save(out / "learner.pt")
-        empirical = learner.empirical
-        if empirical is None:
-            emp_eval = {"sample": 0.0, "best": 0.0}
-        else:
-            empirical.save(out / "empirical.pt")
-            emp_eval = evaluate(empirical)
-        points = None if patches is None else patches.positions
-        colors = None if patches is None else patches.colors[:, 0]
-        density_figure(
-            [("hypothesis", hypothesis), ("empirical", empirical)],
-            points,
-            colors,
-            out / "densities.png",
-            title=kind,
-        )
-    finally:
-        runner.close()
-    learn_seconds = sum(h.seconds for h in learner.history)
-    summary = {
-        "hypothesis_source": config.hypothesis,
-        "hypothesis_success": hyp_eval["sample"],
-        "empirical_success": emp_eval["sample"],
-        "hypothesis_best_of_k_success": hyp_eval["best"],
-        "empirical_best_of_k_success": emp_eval["best"],
-        "trials": len(learner.trials),
-        "trials_per_minute": 60.0 * len(learner.trials) / learn_seconds,
-        "eval_trials_per_measure": config.eval_trials,
-        "learning_success": float(learner.trials.success.float().mean()),
-        "empirical_particles": 0 if empirical is None else len(empirical),
-        "empirical_ess": 0.0 if empirical is None else empirical.effective_sample_size(),
-        "cycles": [asdict(h) for h in learner.history],
-        "seconds": time.perf_counter() - start,
-    }
-    if writer is not None:
-        writer.add_scalar(f"{kind}/hypothesis_success", summary["hypothesis_success"], 0)
-        writer.add_scalar(f"{kind}/empirical_success", summary["empirical_success"], 0)
-    return summary
+            hypothesis.save(out / "hypothesis.pt")
+            step = (lambda n: progress.update(n)) if progress is not None else None
+            eval_seeds = range(EVAL_SEED_BASE, EVAL_SEED_BASE + self.eval_trials + self.num_envs)
 
+            def evaluate(density: SE3KDE) -> dict[str, float]:
+                """Plain draws and best-of-K draws on the same held-out placements."""
+                figures = {}
+                for name, k in (("sample", 1), ("best", self.candidates)):
+                    r = evaluate_density(
+                        density,
+                        runner,
+                        self.eval_trials,
+                        eval_seeds,
+                        runner.workspace,
+                        generator,
+                        step,
+                        candidates=k,
+                    )
+                    figures[name] = r["success_rate"]
+                return figures
 
-def run_experiment(config: ExperimentConfig, out: Path) -> dict[str, Any]:
-    """All objects of ``config``; writes ``out/summary.json`` and TensorBoard logs."""
-    from torch.utils.tensorboard import SummaryWriter
-    from tqdm import tqdm
+            hyp_eval = evaluate(hypothesis)
 
-    out.mkdir(parents=True, exist_ok=True)
-    per_object = config.cycles * config.trials_per_cycle + 4 * config.eval_trials
-    writer = SummaryWriter(str(out))
-    results: dict[str, Any] = {}
-    try:
-        with tqdm(total=per_object * len(config.objects), unit="trial") as bar:
-            for kind in config.objects:
-                bar.set_description(kind)
-                results[kind] = learn_object(kind, config, out / kind, writer, bar)
-    finally:
-        writer.close()
-    summary = {"config": asdict(config), "objects": results}
-    (out / "summary.json").write_text(json.dumps(summary, indent=2))
-    return summary
+            learner = GraspLearner(
+                hypothesis,
+                runner.workspace,
+                c_rel=self.c_rel,
+                sigma_t=self.empirical_sigma_t,
+                sigma_r=self.empirical_sigma_r,
+            )
+            n = self.trials_per_cycle
+            for k in range(self.cycles):
+                base = LEARN_SEED_BASE + 100_000 * k
+                stats = learner.run_cycle(
+                    runner, n, range(base, base + n + self.num_envs), generator, step
+                )
+                if writer is not None:
+                    for name in ("success_rate", "effective_sample_size", "trials", "particles"):
+                        writer.add_scalar(f"{kind}/{name}", getattr(stats, name), k)
+                    writer.add_scalar(f"{kind}/cumulative_trials", len(learner.trials), k)
+            learner.save(out / "learner.pt")
+            empirical = learner.empirical
+            if empirical is None:
+                emp_eval = {"sample": 0.0, "best": 0.0}
+            else:
+                empirical.save(out / "empirical.pt")
+                emp_eval = evaluate(empirical)
+            points = None if patches is None else patches.positions
+            colors = None if patches is None else patches.colors[:, 0]
+            density_figure(
+                [("hypothesis", hypothesis), ("empirical", empirical)],
+                points,
+                colors,
+                out / "densities.png",
+                title=kind,
+            )
+        finally:
+            runner.close()
+        learn_seconds = sum(h.seconds for h in learner.history)
+        summary = {
+            "hypothesis_source": self.hypothesis,
+            "hypothesis_success": hyp_eval["sample"],
+            "empirical_success": emp_eval["sample"],
+            "hypothesis_best_of_k_success": hyp_eval["best"],
+            "empirical_best_of_k_success": emp_eval["best"],
+            "trials": len(learner.trials),
+            "trials_per_minute": 60.0 * len(learner.trials) / learn_seconds,
+            "eval_trials_per_measure": self.eval_trials,
+            "learning_success": float(learner.trials.success.float().mean()),
+            "empirical_particles": 0 if empirical is None else len(empirical),
+            "empirical_ess": 0.0 if empirical is None else empirical.effective_sample_size(),
+            "cycles": [asdict(h) for h in learner.history],
+            "seconds": time.perf_counter() - start,
+        }
+        if writer is not None:
+            writer.add_scalar(f"{kind}/hypothesis_success", summary["hypothesis_success"], 0)
+            writer.add_scalar(f"{kind}/empirical_success", summary["empirical_success"], 0)
+        return summary
+
+    def run(self, out: Path) -> dict[str, Any]:
+        """All objects; writes ``out/summary.json`` (the settings under ``config``, the
+        figures per object under ``objects``) and TensorBoard logs."""
+        from tqdm import tqdm
+
+        out.mkdir(parents=True, exist_ok=True)
+        per_object = self.cycles * self.trials_per_cycle + 4 * self.eval_trials
+        writer = tensorboard(out)
+        results: dict[str, Any] = {}
+        try:
+            with tqdm(total=per_object * len(self.objects), unit="trial") as bar:
+                for kind in self.objects:
+                    bar.set_description(kind)
+                    results[kind] = self.learn_object(kind, out / kind, writer, bar)
+        finally:
+            writer.close()
+        summary = {"config": dict(vars(self)), "objects": results}
+        write_summary(out / "summary.json", summary)
+        return summary
 
 
 def format_table(summary: dict[str, Any]) -> str:
@@ -273,7 +325,7 @@ def nbp_grasp_trials(
     from vistask.envs.tabletop import object_symmetry
     from vistask.grasp.density import instance_grasp_density
     from vistask.grasp.learning import draw_reachable
-    from vistask.objects import ObjectModel, infer
+    from vistask.objects import NBP, ObjectModel
     from vistask.se3 import identity_poses
     from vistask.vision import pose_error
 
@@ -281,6 +333,7 @@ def nbp_grasp_trials(
     if patches is None:
         raise ValueError(f"no object patches for {kind!r}")
     model = ObjectModel.learn(patches, name=kind)
+    nbp = NBP()
     env = GraspTrialEnv(kind, cameras=cameras, image_size=image_size)
     generator = torch.Generator().manual_seed(seed)
     successes, errors_t, errors_r = [], [], []
@@ -291,7 +344,7 @@ def nbp_grasp_trials(
             scene = env.patches(obs, label=None)
             # Drop the table plane and everything far from it: NBP gets the clutter above.
             scene = scene.in_box(torch.tensor([-0.4, -0.4, 0.805]), torch.tensor([0.4, 0.4, 1.3]))
-            estimate = infer(model, scene, seed=seed + k).pose.float()
+            estimate = nbp.infer(model, scene, seed=seed + k).pose.float()
             truth = torch.as_tensor(info["object_pose"], dtype=torch.float32)
             err_t, err_r = pose_error(estimate, truth, object_symmetry(kind))
             errors_t.append(float(err_t))
@@ -332,7 +385,7 @@ def run_nbp(out: Path, objects: tuple[str, ...], n_trials: int, candidates: int 
         summary = json.loads(path.read_text())
         for kind, r in results.items():
             summary["objects"].setdefault(kind, {})["nbp"] = r
-        path.write_text(json.dumps(summary, indent=2))
+        write_summary(path, summary)
     return results
 
 

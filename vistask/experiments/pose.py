@@ -8,22 +8,23 @@ object's symmetry. robosuite is imported only when scenes are made.
 
 from __future__ import annotations
 
-import json
 import statistics
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
 
-from vistask.objects.model import ModelConfig, ObjectModel
-from vistask.objects.nbp import NBPConfig, infer
-from vistask.objects.registration import RegistrationConfig, estimate_pose_open3d
-from vistask.vision import PatchConfig, Patches, pose_error, view_patches
+from vistask.objects import NBP, ObjectModel, Open3DRegistration
+from vistask.runs import write_summary
+from vistask.vision import Patches, PatchExtractor, pose_error, view_patches
 
+DEFAULT_OBJECTS = ("cereal", "milk", "bread", "hammer", "can", "box")
 DEFAULT_CAMERAS = ("front", "left", "top")
+METHODS = ("nbp", "open3d")
 SUCCESS_TRANSLATION_M = 0.02
 SUCCESS_ROTATION_DEG = 15.0
 TABLE_MARGIN_M = 0.004
@@ -58,49 +59,6 @@ CONDITIONS: dict[str, Condition] = {
 }
 
 
-@dataclass
-class BenchConfig:
-    """What to run.
-
-    Attributes:
-        objects: object kinds (``vistask.envs.tabletop.OBJECTS``).
-        n_scenes: test scenes per object and condition.
-        conditions: names from ``CONDITIONS``.
-        methods: "nbp" and/or "open3d".
-        cameras: cameras of the learning views and of the test scenes.
-        image_size: pixels (square images).
-        n_rotations: object yaws shot for learning.
-        voxel: down-sampling voxel (metres) of the learned patch set.
-        seed: base seed of the test scenes (learning views are fixed).
-        device: where NBP runs.
-        model, nbp, registration, patches: parameters of the parts.
-    """
-
-    objects: tuple[str, ...] = ("cereal", "milk", "bread", "hammer", "can", "box")
-    n_scenes: int = 10
-    conditions: tuple[str, ...] = ("clean", "clutter")
-    methods: tuple[str, ...] = ("nbp", "open3d")
-    cameras: tuple[str, ...] = DEFAULT_CAMERAS
-    image_size: int = 256
-    n_rotations: int = 4
-    voxel: float = 0.004
-    seed: int = 1000
-    device: str = "cpu"
-    model: ModelConfig = field(default_factory=ModelConfig)
-    nbp: NBPConfig = field(default_factory=NBPConfig)
-    registration: RegistrationConfig = field(default_factory=RegistrationConfig)
-    patches: PatchConfig = field(default_factory=PatchConfig)
-
-    def __post_init__(self) -> None:
-        unknown = set(self.conditions) - set(CONDITIONS)
-        if unknown:
-            raise ValueError(f"unknown conditions {sorted(unknown)}; known: {sorted(CONDITIONS)}")
-        if set(self.methods) - {"nbp", "open3d"} or not self.methods:
-            raise ValueError(f"methods must be among 'nbp', 'open3d', got {self.methods}")
-        if self.n_scenes < 1 or not self.objects:
-            raise ValueError("need at least one object and one scene")
-
-
 def visible_fraction(scene) -> list[float]:
     """Per camera, the target's pixels seen in ``scene`` over those seen with the
     distractors removed (1: not occluded). Re-renders the target alone at its pose."""
@@ -118,30 +76,12 @@ def visible_fraction(scene) -> list[float]:
     return fractions
 
 
-def scene_patches(scene, config: PatchConfig | None = None) -> Patches:
+def scene_patches(scene, extractor: PatchExtractor | None = None) -> Patches:
     """World-frame patches of every view of a ``Scene``, without the table plane."""
     from vistask.envs.tabletop import TABLE_TOP_Z
 
-    patches = Patches.cat([view_patches(v, config=config) for v in scene.views.values()])
+    patches = Patches.cat([view_patches(v, extractor=extractor) for v in scene.views.values()])
     return patches.select(patches.positions[:, 2] > TABLE_TOP_Z + TABLE_MARGIN_M)
-
-
-def learn_model(
-    kind: str,
-    cameras: Sequence[str] = DEFAULT_CAMERAS,
-    n_rotations: int = 4,
-    image_size: int = 256,
-    voxel: float = 0.004,
-    config: ModelConfig | None = None,
-    patch_config: PatchConfig | None = None,
-) -> ObjectModel:
-    """Render ``kind`` alone at ``n_rotations`` yaws, merge its patches, learn its model."""
-    from vistask.envs.tabletop import object_patches
-
-    patches = object_patches(
-        kind, n_rotations, cameras, image_size, config=patch_config, voxel=voxel
-    )
-    return ObjectModel.learn(patches, kind, config)
 
 
 def draw_estimate(view, model: ObjectModel, pose: torch.Tensor, scale: int = 2) -> np.ndarray:
@@ -156,147 +96,237 @@ def draw_estimate(view, model: ObjectModel, pose: torch.Tensor, scale: int = 2) 
     return draw_patches(view.rgb, view.camera, world, length=0.008, scale=scale)
 
 
-def make_test_scene(
-    seed: int, kind: str, condition: Condition, index: int, cfg: BenchConfig
-) -> tuple:
-    """A test scene of ``condition`` (reproducible from ``seed``) and the target's visible
-    fraction per camera (see ``visible_fraction``)."""
-    from vistask.envs.tabletop import tabletop_world
+class PoseBenchmark:
+    """Learn each object's model, then estimate its pose in test scenes with every method.
 
-    world = tabletop_world()
-    n = condition.distractors(index)
-    best: tuple | None = None
-    for attempt in range(condition.max_tries if condition.occluded else 1):
-        try:
-            scene = world.generate(
-                seed * 100 + attempt,
-                kind,
-                n,
-                cfg.cameras,
-                cfg.image_size,
-                distractor_range=condition.distractor_range,
-            )
-        except RuntimeError:  # no room for every distractor that close: draw again
-            continue
-        visible = visible_fraction(scene)
-        if best is None or min(visible) < min(best[1]):
-            best = (scene, visible)
-        if not condition.occluded or min(visible) < OCCLUDED:
-            break
-    if best is None:
-        raise RuntimeError(f"no scene could be placed for seed {seed}")
-    return best
-
-
-def _estimate(method: str, model: ObjectModel, patches: Patches, cfg: BenchConfig, seed: int):
-    if method == "nbp":
-        result = infer(model, patches, cfg.nbp, device=cfg.device, seed=seed)
-        return result.pose.cpu()
-    return estimate_pose_open3d(model, patches, cfg.registration, seed=seed).pose
-
-
-def _run_method(
-    method: str, model: ObjectModel, patches: Patches, scene, cfg: BenchConfig, seed: int
-) -> dict:
-    """Estimate the target's pose in ``scene`` with ``method``; the record of the attempt."""
-    start = time.perf_counter()
-    try:
-        pose = _estimate(method, model, patches, cfg, seed)
-    except ValueError as err:  # nothing matched the model: a failure, not a crash
-        pose, failure = None, str(err)
-    else:
-        failure = None
-    seconds = time.perf_counter() - start
-    if pose is None:
-        t_err, r_err = float("inf"), 180.0
-    else:
-        te, re = pose_error(pose, scene.target_pose, scene.symmetry())
-        t_err, r_err = float(te), float(re)
-    return {
-        "method": method,
-        "condition": None,
-        "object": scene.target,
-        "seed": seed,
-        "scene_seed": scene.seed,
-        "objects_in_scene": scene.objects,
-        "translation_error_m": t_err,
-        "rotation_error_deg": r_err,
-        "success": t_err < SUCCESS_TRANSLATION_M and r_err < SUCCESS_ROTATION_DEG,
-        "seconds": seconds,
-        "error": failure,
-        "pose": None if pose is None else pose.tolist(),
-        "true_pose": scene.target_pose.tolist(),
-    }
-
-
-def run_benchmark(
-    cfg: BenchConfig,
-    out: Path | None = None,
-    writer=None,
-    pictures: int = 0,
-    log: Callable[[str], None] | None = print,
-    models: dict[str, ObjectModel] | None = None,
-) -> dict:
-    """Learn each object's model, estimate its pose in every test scene with every method.
+    ``PoseBenchmark(objects=("milk",), n_scenes=2).run(out)``. The arguments are kept as
+    attributes of the same names.
 
     Args:
-        cfg: what to run.
-        out: run directory (pictures go to ``out/pictures``); None writes nothing.
-        writer: optional ``torch.utils.tensorboard.SummaryWriter`` for per-scene scalars.
-        pictures: per object and condition, how many scenes get a picture of each method's
-            estimate drawn over the first camera's image.
-        log: progress printer, or None.
-        models: already learned models by object kind (the others are learned here).
+        objects: object kinds (``vistask.envs.tabletop.OBJECTS``).
+        n_scenes: test scenes per object and condition.
+        conditions: names from ``CONDITIONS``.
+        methods: "nbp" and/or "open3d".
+        cameras: cameras of the learning views and of the test scenes.
+        image_size: pixels (square images).
+        n_rotations: object yaws shot for learning.
+        voxel: down-sampling voxel (metres) of the learned patch set.
+        seed: base seed of the test scenes (learning views are fixed).
+        device: where NBP runs.
+        nbp: the NBP estimator (default ``NBP()``).
+        registration: the Open3D baseline (default ``Open3DRegistration()``).
+        extractor: patch extraction of learning views and test scenes (default
+            ``PatchExtractor()``). Models are learned with ``ObjectModel.learn``'s defaults;
+            pass others to ``run`` as ``models``.
 
-    Returns:
-        summary dict (see ``summarize``) with the per-scene ``records`` and the config.
+    Raises:
+        ValueError: no object, n_scenes below 1, an unknown condition, or methods empty or
+            not among ``METHODS``.
     """
-    records: list[dict] = []
-    step = 0
-    for o, kind in enumerate(cfg.objects):
-        start = time.perf_counter()
-        model = (models or {}).get(kind) or learn_model(
-            kind, cfg.cameras, cfg.n_rotations, cfg.image_size, cfg.voxel, cfg.model, cfg.patches
+
+    def __init__(
+        self,
+        objects: Sequence[str] = DEFAULT_OBJECTS,
+        n_scenes: int = 10,
+        conditions: Sequence[str] = ("clean", "clutter"),
+        methods: Sequence[str] = METHODS,
+        cameras: Sequence[str] = DEFAULT_CAMERAS,
+        image_size: int = 256,
+        n_rotations: int = 4,
+        voxel: float = 0.004,
+        seed: int = 1000,
+        device: str = "cpu",
+        nbp: NBP | None = None,
+        registration: Open3DRegistration | None = None,
+        extractor: PatchExtractor | None = None,
+    ) -> None:
+        if not objects:
+            raise ValueError(f"objects must name at least one object kind, got {objects!r}")
+        if n_scenes < 1:
+            raise ValueError(f"n_scenes must be >= 1, got {n_scenes}")
+        unknown = set(conditions) - set(CONDITIONS)
+        if unknown:
+            raise ValueError(f"unknown conditions {sorted(unknown)}; known: {sorted(CONDITIONS)}")
+        if set(methods) - set(METHODS) or not methods:
+            raise ValueError(f"methods must be among {METHODS} (at least one), got {methods}")
+        self.objects = tuple(objects)
+        self.n_scenes = n_scenes
+        self.conditions = tuple(conditions)
+        self.methods = tuple(methods)
+        self.cameras = tuple(cameras)
+        self.image_size = image_size
+        self.n_rotations = n_rotations
+        self.voxel = voxel
+        self.seed = seed
+        self.device = device
+        self.nbp = nbp or NBP()
+        self.registration = registration or Open3DRegistration()
+        self.extractor = extractor or PatchExtractor()
+
+    def learn_model(self, kind: str) -> ObjectModel:
+        """Render ``kind`` alone at ``n_rotations`` yaws, merge its patches, learn its model."""
+        from vistask.envs.tabletop import object_patches
+
+        patches = object_patches(
+            kind,
+            self.n_rotations,
+            self.cameras,
+            self.image_size,
+            extractor=self.extractor,
+            voxel=self.voxel,
         )
-        if log:
-            log(
-                f"{kind}: model of {len(model.patches)} patches, {model.n_classes} classes, "
-                f"depth {model.depth()}, learned in {time.perf_counter() - start:.1f} s"
-            )
-        for c, cond in enumerate(cfg.conditions):
-            for i in range(cfg.n_scenes):
-                seed = cfg.seed + 10_000 * o + 1_000 * c + i
-                scene, visible = make_test_scene(seed, kind, CONDITIONS[cond], i, cfg)
-                start = time.perf_counter()
-                patches = scene_patches(scene, cfg.patches)
-                patch_seconds = time.perf_counter() - start
-                for method in cfg.methods:
-                    record = _run_method(method, model, patches, scene, cfg, seed)
-                    record["seconds"] += patch_seconds
-                    record["condition"], record["visible_fraction"] = cond, visible
-                    records.append(record)
-                    t_err, r_err = record["translation_error_m"], record["rotation_error_deg"]
-                    ok, seconds, pose = record["success"], record["seconds"], record["pose"]
-                    if writer is not None:
-                        tag = f"{method}/{cond}/{kind}"
-                        writer.add_scalar(f"{tag}/translation_error_m", min(t_err, 1.0), step)
-                        writer.add_scalar(f"{tag}/rotation_error_deg", r_err, step)
-                        writer.add_scalar(f"{tag}/seconds", seconds, step)
-                        writer.add_scalar(f"{tag}/success", float(ok), step)
-                    if out is not None and i < pictures and pose is not None:
-                        name = f"{kind}_{cond}_{seed}_{method}"
-                        _save_picture(out, scene, model, torch.tensor(pose), name)
-                    if log:
-                        log(
-                            f"  {method:6s} {cond:7s} {kind:7s} seed {seed}: "
-                            f"{t_err * 100:6.2f} cm {r_err:6.1f} deg {seconds:5.2f} s"
-                            f"{'' if ok else '  FAIL'}"
-                        )
-                step += 1
-    summary = summarize(records)
-    summary["config"] = _jsonable(asdict(cfg))
-    summary["records"] = records
-    return summary
+        return ObjectModel.learn(patches, kind)
+
+    def make_test_scene(self, seed: int, kind: str, condition: Condition, index: int) -> tuple:
+        """A test scene of ``condition`` (reproducible from ``seed``) and the target's visible
+        fraction per camera (see ``visible_fraction``)."""
+        from vistask.envs.tabletop import tabletop_world
+
+        world = tabletop_world()
+        n = condition.distractors(index)
+        best: tuple | None = None
+        for attempt in range(condition.max_tries if condition.occluded else 1):
+            try:
+                scene = world.generate(
+                    seed * 100 + attempt,
+                    kind,
+                    n,
+                    self.cameras,
+                    self.image_size,
+                    distractor_range=condition.distractor_range,
+                )
+            except RuntimeError:  # no room for every distractor that close: draw again
+                continue
+            visible = visible_fraction(scene)
+            if best is None or min(visible) < min(best[1]):
+                best = (scene, visible)
+            if not condition.occluded or min(visible) < OCCLUDED:
+                break
+        if best is None:
+            raise RuntimeError(f"no scene could be placed for seed {seed}")
+        return best
+
+    def _estimate(self, method: str, model: ObjectModel, patches: Patches, seed: int):
+        if method == "nbp":
+            return self.nbp.infer(model, patches, device=self.device, seed=seed).pose.cpu()
+        return self.registration.estimate_pose(model, patches, seed=seed).pose
+
+    def _run_method(
+        self, method: str, model: ObjectModel, patches: Patches, scene, seed: int
+    ) -> dict:
+        """Estimate the target's pose in ``scene`` with ``method``; the record of the attempt."""
+        start = time.perf_counter()
+        try:
+            pose = self._estimate(method, model, patches, seed)
+        except ValueError as err:  # nothing matched the model: a failure, not a crash
+            pose, failure = None, str(err)
+        else:
+            failure = None
+        seconds = time.perf_counter() - start
+        if pose is None:
+            t_err, r_err = float("inf"), 180.0
+        else:
+            te, re = pose_error(pose, scene.target_pose, scene.symmetry())
+            t_err, r_err = float(te), float(re)
+        return {
+            "method": method,
+            "condition": None,
+            "object": scene.target,
+            "seed": seed,
+            "scene_seed": scene.seed,
+            "objects_in_scene": scene.objects,
+            "translation_error_m": t_err,
+            "rotation_error_deg": r_err,
+            "success": t_err < SUCCESS_TRANSLATION_M and r_err < SUCCESS_ROTATION_DEG,
+            "seconds": seconds,
+            "error": failure,
+            "pose": None if pose is None else pose.tolist(),
+            "true_pose": scene.target_pose.tolist(),
+        }
+
+    def run(
+        self,
+        out: Path | None = None,
+        writer=None,
+        pictures: int = 0,
+        log: Callable[[str], None] | None = print,
+        models: dict[str, ObjectModel] | None = None,
+    ) -> dict:
+        """Learn each object's model, estimate its pose in every test scene with every method.
+
+        Args:
+            out: run directory (pictures go to ``out/pictures``); None writes nothing.
+            writer: optional ``torch.utils.tensorboard.SummaryWriter`` for per-scene scalars.
+            pictures: per object and condition, how many scenes get a picture of each method's
+                estimate drawn over the first camera's image.
+            log: progress printer, or None.
+            models: already learned models by object kind (the others are learned here).
+
+        Returns:
+            summary dict (see ``summarize``) with the per-scene ``records`` and the settings
+            (``config``).
+        """
+        records: list[dict] = []
+        model_params: dict[str, dict[str, Any]] = {}
+        step = 0
+        for o, kind in enumerate(self.objects):
+            start = time.perf_counter()
+            model = (models or {}).get(kind) or self.learn_model(kind)
+            model_params[kind] = model.params
+            if log:
+                log(
+                    f"{kind}: model of {len(model.patches)} patches, {model.n_classes} classes, "
+                    f"depth {model.depth()}, learned in {time.perf_counter() - start:.1f} s"
+                )
+            for c, cond in enumerate(self.conditions):
+                for i in range(self.n_scenes):
+                    seed = self.seed + 10_000 * o + 1_000 * c + i
+                    scene, visible = self.make_test_scene(seed, kind, CONDITIONS[cond], i)
+                    start = time.perf_counter()
+                    patches = scene_patches(scene, self.extractor)
+                    patch_seconds = time.perf_counter() - start
+                    for method in self.methods:
+                        record = self._run_method(method, model, patches, scene, seed)
+                        record["seconds"] += patch_seconds
+                        record["condition"], record["visible_fraction"] = cond, visible
+                        records.append(record)
+                        t_err, r_err = record["translation_error_m"], record["rotation_error_deg"]
+                        ok, seconds, pose = record["success"], record["seconds"], record["pose"]
+                        if writer is not None:
+                            tag = f"{method}/{cond}/{kind}"
+                            writer.add_scalar(f"{tag}/translation_error_m", min(t_err, 1.0), step)
+                            writer.add_scalar(f"{tag}/rotation_error_deg", r_err, step)
+                            writer.add_scalar(f"{tag}/seconds", seconds, step)
+                            writer.add_scalar(f"{tag}/success", float(ok), step)
+                        if out is not None and i < pictures and pose is not None:
+                            name = f"{kind}_{cond}_{seed}_{method}"
+                            _save_picture(out, scene, model, torch.tensor(pose), name)
+                        if log:
+                            log(
+                                f"  {method:6s} {cond:7s} {kind:7s} seed {seed}: "
+                                f"{t_err * 100:6.2f} cm {r_err:6.1f} deg {seconds:5.2f} s"
+                                f"{'' if ok else '  FAIL'}"
+                            )
+                    step += 1
+        summary = summarize(records)
+        summary["config"] = {
+            "objects": self.objects,
+            "n_scenes": self.n_scenes,
+            "conditions": self.conditions,
+            "methods": self.methods,
+            "cameras": self.cameras,
+            "image_size": self.image_size,
+            "n_rotations": self.n_rotations,
+            "voxel": self.voxel,
+            "seed": self.seed,
+            "device": self.device,
+            "model": model_params,
+            "nbp": vars(self.nbp),
+            "registration": vars(self.registration),
+            "patches": vars(self.extractor),
+        }
+        summary["records"] = records
+        return summary
 
 
 def _save_picture(out: Path, scene, model: ObjectModel, pose: torch.Tensor, name: str) -> None:
@@ -307,17 +337,6 @@ def _save_picture(out: Path, scene, model: ObjectModel, pose: torch.Tensor, name
     view = next(iter(scene.views.values()))
     picture = draw_estimate(view, model, pose)
     cv2.imwrite(str(folder / f"{name}.png"), picture[:, :, ::-1])
-
-
-def _jsonable(x):
-    """Plain JSON types; non-finite floats (a failed estimate's error) become None."""
-    if isinstance(x, float) and not np.isfinite(x):
-        return None
-    if isinstance(x, dict):
-        return {k: _jsonable(v) for k, v in x.items()}
-    if isinstance(x, list | tuple):
-        return [_jsonable(v) for v in x]
-    return x
 
 
 def _stats(rows: list[dict]) -> dict:
@@ -364,7 +383,7 @@ def markdown_table(summary: dict) -> str:
         "| median r err (deg) | s / scene | visible | occluded |",
         "|---|---|---|---:|---:|---:|---:|---:|---:|---:|",
     ]
-    for method in ("nbp", "open3d"):
+    for method in METHODS:
         for cond, entry in summary.get(method, {}).items():
             rows = [*entry["per_object"].items(), ("**all**", entry)]
             for kind, s in rows:
@@ -383,9 +402,7 @@ def write_results(summary: dict, out: Path, title: str = "Pose estimation") -> s
     """Write ``summary.json`` and ``results.md`` to ``out``; returns the Markdown table."""
     out.mkdir(parents=True, exist_ok=True)
     table = markdown_table(summary)
-    (out / "summary.json").write_text(
-        json.dumps(_jsonable(summary), indent=2, allow_nan=False, default=str)
-    )
+    write_summary(out / "summary.json", summary)
     note = (
         f"Success: translation error < {100 * SUCCESS_TRANSLATION_M:g} cm and rotation error "
         f"< {SUCCESS_ROTATION_DEG:g} deg, modulo the object's symmetry. Seconds per scene: "

@@ -2,52 +2,41 @@
 
 - ``model``: ``ObjectModel`` (primitive features = appearance classes of patches,
   meta-features, SE(3) compatibility potentials; save/load; optional grasp density).
-- ``nbp``: nonparametric belief propagation over the model's tree (``infer``).
-- ``registration``: Open3D FPFH + RANSAC + ICP baseline.
+- ``nbp``: nonparametric belief propagation over the model's tree (``NBP``).
+- ``registration``: Open3D FPFH + RANSAC + ICP baseline (``Open3DRegistration``).
 """
 
 from vistask.objects.model import (
     MIN_PATCHES_PER_CLASS,
     Feature,
-    ModelConfig,
     ObjectModel,
     appearance_descriptors,
 )
 from vistask.objects.nbp import (
+    NBP,
     Evidence,
-    NBPConfig,
     NBPResult,
     SceneMatch,
-    infer,
     multiply,
     push_up,
     scene_evidence,
     top_down,
 )
-from vistask.objects.registration import (
-    RegistrationConfig,
-    RegistrationResult,
-    estimate_pose_open3d,
-    register,
-)
+from vistask.objects.registration import Open3DRegistration, RegistrationResult
 
 __all__ = [
     "MIN_PATCHES_PER_CLASS",
+    "NBP",
     "Evidence",
     "Feature",
-    "ModelConfig",
-    "NBPConfig",
     "NBPResult",
     "ObjectModel",
-    "RegistrationConfig",
+    "Open3DRegistration",
     "RegistrationResult",
     "SceneMatch",
     "appearance_descriptors",
-    "estimate_pose_open3d",
-    "infer",
     "multiply",
     "push_up",
-    "register",
     "scene_evidence",
     "top_down",
 ]

@@ -17,12 +17,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
-import numpy as np
 import torch
-from scipy.cluster.vq import kmeans2
 from torch import Tensor
 
+from vistask.kmeans import kmeans
 from vistask.se3 import SE3KDE, identity_poses, relative
 from vistask.vision import Patches
 
@@ -55,37 +55,6 @@ class Feature:
         return self.appearance is not None
 
 
-@dataclass
-class ModelConfig:
-    """Learning parameters.
-
-    Attributes:
-        n_classes: number of appearance classes (k-means clusters) before dropping small ones.
-        sigma_t: position bandwidth (metres) of the primitive potentials.
-        sigma_r: orientation bandwidth (radians) of the primitive potentials.
-        meta_sigma_t, meta_sigma_r: bandwidth of meta-feature potentials (one exact particle).
-        class_radius: an observed colour pair farther than this factor times the class's RMS
-            radius from every centre belongs to no class (clutter of another appearance).
-        seed: k-means seed.
-    """
-
-    n_classes: int = 8
-    sigma_t: float = 0.004
-    sigma_r: float = 0.25
-    meta_sigma_t: float = 0.002
-    meta_sigma_r: float = 0.05
-    class_radius: float = 2.5
-    seed: int = 0
-
-    def __post_init__(self) -> None:
-        if self.n_classes < 1:
-            raise ValueError(f"n_classes must be >= 1, got {self.n_classes}")
-        if min(self.sigma_t, self.sigma_r, self.meta_sigma_t, self.meta_sigma_r) <= 0:
-            raise ValueError("bandwidths must be positive")
-        if self.class_radius <= 0:
-            raise ValueError(f"class_radius must be positive, got {self.class_radius}")
-
-
 def appearance_descriptors(colors: Tensor) -> Tensor:
     """(N, 2, 3) side colours (darker first) -> (N, 6) appearance descriptors."""
     if colors.dim() != 3 or colors.shape[1:] != (2, 3):
@@ -106,7 +75,8 @@ class ObjectModel:
         patches: (N) the object-frame patches it was learned from (for drawing, baselines).
         labels: (N,) appearance class of each patch.
         grasp_density: optional ``SE3KDE`` of gripper poses in the object frame (psi_og).
-        config: the learning parameters.
+        params: the keyword arguments ``learn`` was given (n_classes, sigma_t, sigma_r,
+            meta_sigma_t, meta_sigma_r, class_radius, seed).
     """
 
     name: str
@@ -116,25 +86,52 @@ class ObjectModel:
     patches: Patches
     labels: Tensor
     grasp_density: SE3KDE | None = None
-    config: ModelConfig = field(default_factory=ModelConfig)
+    params: dict[str, Any] = field(default_factory=dict)
     _instances: dict[int, Tensor] = field(default_factory=dict, init=False, repr=False)
 
     # --- learning --------------------------------------------------------------------------
     @classmethod
     def learn(
-        cls, patches: Patches, name: str = "object", config: ModelConfig | None = None
+        cls,
+        patches: Patches,
+        name: str = "object",
+        n_classes: int = 8,
+        sigma_t: float = 0.004,
+        sigma_r: float = 0.25,
+        meta_sigma_t: float = 0.002,
+        meta_sigma_r: float = 0.05,
+        class_radius: float = 2.5,
+        seed: int = 0,
     ) -> ObjectModel:
         """Learn a model from an object-frame patch set.
 
         Args:
             patches: (N) patches with normals, in the object frame.
             name: object name.
-            config: learning parameters.
+            n_classes: number of appearance classes (k-means clusters) before dropping small
+                ones.
+            sigma_t: position bandwidth (metres) of the primitive potentials.
+            sigma_r: orientation bandwidth (radians) of the primitive potentials.
+            meta_sigma_t, meta_sigma_r: bandwidth of meta-feature potentials (one exact
+                particle).
+            class_radius: an observed colour pair farther than this factor times the class's
+                RMS radius from every centre belongs to no class (clutter of another appearance).
+            seed: k-means seed.
 
         Raises:
-            ValueError: patches without normals, or too few patches for a model.
+            ValueError: a bad parameter, patches without normals, or too few patches.
         """
-        cfg = config or ModelConfig()
+        if n_classes < 1:
+            raise ValueError(f"n_classes must be >= 1, got {n_classes}")
+        for arg, value in (
+            ("sigma_t", sigma_t),
+            ("sigma_r", sigma_r),
+            ("meta_sigma_t", meta_sigma_t),
+            ("meta_sigma_r", meta_sigma_r),
+            ("class_radius", class_radius),
+        ):
+            if not value > 0:
+                raise ValueError(f"{arg} must be positive, got {value}")
         if patches.normals is None:
             raise ValueError("learning needs patches with normals (full patch frames)")
         need = 2 * MIN_PATCHES_PER_CLASS
@@ -144,10 +141,13 @@ class ObjectModel:
             )
         patches = patches.to("cpu")
         desc = appearance_descriptors(patches.colors)
-        centres, labels = _kmeans(desc, min(cfg.n_classes, len(patches)), cfg.seed)
+        # Fewer distinct descriptors than classes would leave duplicate centres.
+        n_distinct = len(torch.unique(desc.round(decimals=4), dim=0))
+        centres = kmeans(desc, min(n_classes, n_distinct), seed=seed)
         # Small classes are noise: merge their patches into the nearest big class (until
         # every class is big; reassignment can leave a class short).
         while True:
+            labels = torch.cdist(desc, centres).argmin(dim=1)
             counts = torch.bincount(labels, minlength=len(centres))
             big = counts >= MIN_PATCHES_PER_CLASS
             if big.all():
@@ -155,12 +155,22 @@ class ObjectModel:
             if not big.any():
                 raise ValueError("no appearance class has enough patches")
             centres = centres[big]
-            labels = torch.cdist(desc, centres).argmin(dim=1)
         sq = ((desc - centres[labels]) ** 2).sum(dim=1)
         rms = torch.stack([sq[labels == k].mean().sqrt() for k in range(len(centres))])
-        radii = cfg.class_radius * rms.clamp_min(0.02)
-        features = _build_tree(patches.frames(), labels, len(centres), cfg)
-        return cls(name, centres, radii, features, patches, labels, None, cfg)
+        radii = class_radius * rms.clamp_min(0.02)
+        features = _build_tree(
+            patches.frames(), labels, len(centres), sigma_t, sigma_r, meta_sigma_t, meta_sigma_r
+        )
+        params = {
+            "n_classes": n_classes,
+            "sigma_t": sigma_t,
+            "sigma_r": sigma_r,
+            "meta_sigma_t": meta_sigma_t,
+            "meta_sigma_r": meta_sigma_r,
+            "class_radius": class_radius,
+            "seed": seed,
+        }
+        return cls(name, centres, radii, features, patches, labels, None, params)
 
     # --- structure ---------------------------------------------------------------------------
     @property
@@ -238,7 +248,7 @@ class ObjectModel:
             "patches": {k: v for k, v in self.patches.to("cpu").__dict__.items()},
             "labels": self.labels.cpu(),
             "grasp_density": grasp,
-            "config": self.config.__dict__,
+            "params": self.params,
         }
 
     def save(self, path: str | Path) -> None:
@@ -268,26 +278,27 @@ class ObjectModel:
             Patches(**state["patches"]),
             state["labels"],
             None if grasp is None else SE3KDE.from_state_dict(grasp),
-            ModelConfig(**state["config"]),
+            state["params"],
         )
 
 
-def _kmeans(desc: Tensor, k: int, seed: int) -> tuple[Tensor, Tensor]:
-    """(N, D) descriptors -> (k, D) centres and (N,) labels (scipy k-means++, seeded)."""
-    data = desc.double().numpy()
-    # Duplicate descriptors can make k-means++ pick fewer distinct seeds than k.
-    k = min(k, len(np.unique(data.round(4), axis=0)))
-    centres, labels = kmeans2(data, k, minit="++", seed=np.random.default_rng(seed))
-    return torch.from_numpy(centres).float(), torch.from_numpy(labels).long()
-
-
-def _build_tree(frames: Tensor, labels: Tensor, n_classes: int, cfg: ModelConfig) -> list[Feature]:
+def _build_tree(
+    frames: Tensor,
+    labels: Tensor,
+    n_classes: int,
+    sigma_t: float,
+    sigma_r: float,
+    meta_sigma_t: float,
+    meta_sigma_r: float,
+) -> list[Feature]:
     """Agglomerate appearance classes into a binary Markov tree.
 
     Args:
         frames: (N, 7) object-frame patch frames.
         labels: (N,) appearance class per patch.
         n_classes: K classes; features 0..K-1 are the primitives.
+        sigma_t, sigma_r: bandwidth of the primitive potentials.
+        meta_sigma_t, meta_sigma_r: bandwidth of the meta-feature potentials.
 
     Returns:
         the features, root last, with their potentials.
@@ -325,8 +336,8 @@ def _build_tree(frames: Tensor, labels: Tensor, n_classes: int, cfg: ModelConfig
         parent_frame = features[f.parent].frame
         if f.is_primitive:
             poses = relative(parent_frame, frames[labels == f.appearance])
-            f.potential = SE3KDE(poses, sigma_t=cfg.sigma_t, sigma_r=cfg.sigma_r)
+            f.potential = SE3KDE(poses, sigma_t=sigma_t, sigma_r=sigma_r)
         else:
             poses = relative(parent_frame, f.frame)[None]
-            f.potential = SE3KDE(poses, sigma_t=cfg.meta_sigma_t, sigma_r=cfg.meta_sigma_r)
+            f.potential = SE3KDE(poses, sigma_t=meta_sigma_t, sigma_r=meta_sigma_r)
     return features

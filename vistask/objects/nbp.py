@@ -43,53 +43,6 @@ def _normals(frames: Tensor) -> Tensor:
 
 
 @dataclass
-class NBPConfig:
-    """Inference parameters.
-
-    Attributes:
-        n_particles: particles per message and belief.
-        sigma_t, sigma_r: bandwidth (metres, radians) of messages and beliefs; wider than the
-            potentials because a patch's orientation error moves its vote by the lever arm.
-        evidence_sigma_t, evidence_sigma_r: bandwidth of the observation potentials.
-        floor: a child message counts at least ``floor`` times its typical value, so a
-            feature without evidence (occluded) lowers a pose's weight but does not zero it.
-        cutoff: SE(3) kernel cut-off in multiples of sigma_t (grid evaluation), or None for
-            dense evaluation, which is faster at these particle counts: votes crowd around
-            the true pose, where the grid saves little.
-        n_modes: pose hypotheses kept (several object instances, or ambiguous poses).
-        mode_starts: mean-shift starts for the modes.
-        refine_sigma_t: position scale (metres) of the final top-down refinement; 0 disables.
-        refine_iters: iterations of that refinement.
-        color_sigma: scale of the colour similarity (descriptor distance) used when checking
-            and refining hypotheses against observed patches.
-        top_down: also compute every feature's top-down belief.
-    """
-
-    n_particles: int = 2000
-    sigma_t: float = 0.01
-    sigma_r: float = 0.3
-    evidence_sigma_t: float = 0.004
-    evidence_sigma_r: float = 0.35
-    floor: float = 0.05
-    cutoff: float | None = None
-    n_modes: int = 4
-    mode_starts: int = 48
-    refine_sigma_t: float = 0.006
-    refine_iters: int = 3
-    color_sigma: float = 0.1
-    top_down: bool = False
-
-    def __post_init__(self) -> None:
-        if self.n_particles < 1 or self.n_modes < 1 or self.mode_starts < 1:
-            raise ValueError("n_particles, n_modes and mode_starts must be >= 1")
-        if min(self.sigma_t, self.sigma_r, self.evidence_sigma_t, self.evidence_sigma_r) <= 0:
-            raise ValueError("bandwidths must be positive")
-        bad_cutoff = self.cutoff is not None and self.cutoff <= 0
-        if self.floor < 0 or bad_cutoff or self.refine_sigma_t < 0:
-            raise ValueError("floor and refine_sigma_t must be >= 0, cutoff > 0")
-
-
-@dataclass
 class Evidence:
     """Observations bound to one primitive feature.
 
@@ -104,7 +57,7 @@ class Evidence:
 
 @dataclass
 class NBPResult:
-    """Output of ``infer``.
+    """Output of ``NBP.infer``.
 
     Attributes:
         poses: (H, 7) object-pose hypotheses (world), best first.
@@ -131,20 +84,23 @@ class NBPResult:
 
 
 def scene_evidence(
-    model: ObjectModel, patches: Patches, config: NBPConfig | None = None, device=None
+    model: ObjectModel,
+    patches: Patches,
+    sigma_t: float = 0.004,
+    sigma_r: float = 0.35,
+    device: torch.device | str | None = None,
 ) -> dict[int, Evidence | None]:
     """Observation potentials: per primitive feature, a density of the matching patch frames.
 
     Args:
         model: the object model.
         patches: (M) world-frame scene patches with normals.
-        config: inference parameters (evidence bandwidth).
+        sigma_t, sigma_r: bandwidth (metres, radians) of the observation potentials.
         device: device of the densities (default: the patches').
 
     Raises:
         ValueError: no patches, or patches without normals.
     """
-    cfg = config or NBPConfig()
     if len(patches) == 0:
         raise ValueError("empty scene: no patches to match the model against")
     if patches.normals is None:
@@ -158,9 +114,7 @@ def scene_evidence(
         mine = classes == model.features[i].appearance
         out[i] = None
         if mine.any():
-            density = SE3KDE(
-                frames[mine], sigma_t=cfg.evidence_sigma_t, sigma_r=cfg.evidence_sigma_r
-            )
+            density = SE3KDE(frames[mine], sigma_t=sigma_t, sigma_r=sigma_r)
             out[i] = Evidence(density, colors[mine])
     return out
 
@@ -234,76 +188,161 @@ def multiply(
     return SE3KDE(x, w.to(device), sigma_t=first.sigma_t, sigma_r=first.sigma_r)
 
 
-def infer(
-    model: ObjectModel,
-    patches: Patches,
-    config: NBPConfig | None = None,
-    device: torch.device | str | None = None,
-    seed: int = 0,
-) -> NBPResult:
-    """Detect the object and estimate its pose in a scene by NBP.
+class NBP:
+    """Pose estimation by nonparametric belief propagation over an object model's tree.
+
+    ``NBP(n_particles=800).infer(model, patches)`` detects the object and returns its pose
+    hypotheses (see the module docstring for the passes).
 
     Args:
-        model: the learned object model.
-        patches: (M) world-frame scene patches (with normals).
-        config: inference parameters.
-        device: where to compute (default CPU).
-        seed: seed of the sampling.
-
-    Returns:
-        the pose hypotheses and the densities computed on the way.
+        n_particles: particles per message and belief.
+        sigma_t, sigma_r: bandwidth (metres, radians) of messages and beliefs; wider than the
+            potentials because a patch's orientation error moves its vote by the lever arm.
+        evidence_sigma_t, evidence_sigma_r: bandwidth of the observation potentials.
+        floor: a child message counts at least ``floor`` times its typical value, so a
+            feature without evidence (occluded) lowers a pose's weight but does not zero it.
+        cutoff: SE(3) kernel cut-off in multiples of sigma_t (grid evaluation), or None for
+            dense evaluation, which is faster at these particle counts: votes crowd around
+            the true pose, where the grid saves little.
+        n_modes: pose hypotheses kept (several object instances, or ambiguous poses).
+        mode_starts: mean-shift starts for the modes.
+        refine_sigma_t: position scale (metres) of the final top-down refinement; 0 disables.
+        refine_iters: iterations of that refinement.
+        color_sigma: scale of the colour similarity (descriptor distance) used when checking
+            and refining hypotheses against observed patches.
+        top_down: also compute every feature's top-down belief.
 
     Raises:
-        ValueError: empty scene, or no scene patch matches the model's appearance.
+        ValueError: n_particles, n_modes or mode_starts below 1, a bandwidth or color_sigma
+            not positive, floor or refine_sigma_t negative, or cutoff not positive.
     """
-    cfg = config or NBPConfig()
-    device = torch.device(device or "cpu")
-    gen = torch.Generator(device=device).manual_seed(seed)
-    patches = patches.to(device)
-    evidence = scene_evidence(model, patches, cfg, device)
-    if all(e is None for e in evidence.values()):
-        raise ValueError(f"no scene patch matches the appearance of {model.name!r}")
 
-    messages: dict[int, SE3KDE | None] = {}
-    beliefs: dict[int, SE3KDE] = {}
-    for i in model.leaves():
-        ev, pot = evidence[i], model.features[i].potential
-        messages[i] = (
-            None
-            if ev is None or pot is None
-            else push_up(ev.density, pot, cfg.n_particles, cfg.sigma_t, cfg.sigma_r, gen)
-        )
-    for i in model.bottom_up_order():
-        feature = model.features[i]
-        incoming = [messages[c] for c in feature.children if messages[c] is not None]
-        if not incoming:
-            messages[i] = None
-            continue
-        beliefs[i] = multiply(incoming, cfg.n_particles, cfg.floor, cfg.cutoff, gen)
-        pot = feature.potential
-        messages[i] = (
-            None
-            if pot is None
-            else push_up(beliefs[i], pot, cfg.n_particles, cfg.sigma_t, cfg.sigma_r, gen)
-        )
+    def __init__(
+        self,
+        n_particles: int = 2000,
+        sigma_t: float = 0.01,
+        sigma_r: float = 0.3,
+        evidence_sigma_t: float = 0.004,
+        evidence_sigma_r: float = 0.35,
+        floor: float = 0.05,
+        cutoff: float | None = None,
+        n_modes: int = 4,
+        mode_starts: int = 48,
+        refine_sigma_t: float = 0.006,
+        refine_iters: int = 3,
+        color_sigma: float = 0.1,
+        top_down: bool = False,
+    ) -> None:
+        for name, value in (
+            ("n_particles", n_particles),
+            ("n_modes", n_modes),
+            ("mode_starts", mode_starts),
+        ):
+            if value < 1:
+                raise ValueError(f"{name} must be >= 1, got {value}")
+        for name, value in (
+            ("sigma_t", sigma_t),
+            ("sigma_r", sigma_r),
+            ("evidence_sigma_t", evidence_sigma_t),
+            ("evidence_sigma_r", evidence_sigma_r),
+            ("color_sigma", color_sigma),
+        ):
+            if not value > 0:
+                raise ValueError(f"{name} must be positive, got {value}")
+        for name, value in (("floor", floor), ("refine_sigma_t", refine_sigma_t)):
+            if value < 0:
+                raise ValueError(f"{name} must be >= 0, got {value}")
+        if cutoff is not None and not cutoff > 0:
+            raise ValueError(
+                f"cutoff must be positive (multiples of sigma_t) or None, got {cutoff}"
+            )
+        self.n_particles = n_particles
+        self.sigma_t = sigma_t
+        self.sigma_r = sigma_r
+        self.evidence_sigma_t = evidence_sigma_t
+        self.evidence_sigma_r = evidence_sigma_r
+        self.floor = floor
+        self.cutoff = cutoff
+        self.n_modes = n_modes
+        self.mode_starts = mode_starts
+        self.refine_sigma_t = refine_sigma_t
+        self.refine_iters = refine_iters
+        self.color_sigma = color_sigma
+        self.top_down = top_down
 
-    root = beliefs[model.root]
-    to_object = inverse(model.features[model.root].frame.to(device))
-    object_belief = SE3KDE(
-        compose(root.points, to_object), root.weights, sigma_t=cfg.sigma_t, sigma_r=cfg.sigma_r
-    )
-    candidates, _ = object_belief.modes(k=cfg.n_modes, n_starts=cfg.mode_starts, generator=gen)
-    match = SceneMatch.build(model, evidence, cfg)
-    if cfg.refine_sigma_t > 0:
-        candidates = torch.stack(
-            [match.refine(p, cfg.refine_sigma_t, cfg.refine_iters) for p in candidates]
+    def infer(
+        self,
+        model: ObjectModel,
+        patches: Patches,
+        device: torch.device | str | None = None,
+        seed: int = 0,
+    ) -> NBPResult:
+        """Detect the object and estimate its pose in a scene.
+
+        Args:
+            model: the learned object model.
+            patches: (M) world-frame scene patches (with normals).
+            device: where to compute (default CPU).
+            seed: seed of the sampling.
+
+        Returns:
+            the pose hypotheses and the densities computed on the way.
+
+        Raises:
+            ValueError: empty scene, or no scene patch matches the model's appearance.
+        """
+        device = torch.device(device or "cpu")
+        gen = torch.Generator(device=device).manual_seed(seed)
+        patches = patches.to(device)
+        evidence = scene_evidence(
+            model, patches, self.evidence_sigma_t, self.evidence_sigma_r, device
         )
-    scores = match.support(candidates, cfg.evidence_sigma_t, cfg.evidence_sigma_r)
-    order = torch.argsort(scores, descending=True)
-    result = NBPResult(candidates[order], scores[order], object_belief, messages, beliefs, evidence)
-    if cfg.top_down:
-        result.beliefs.update(top_down(model, result, cfg, gen))
-    return result
+        if all(e is None for e in evidence.values()):
+            raise ValueError(f"no scene patch matches the appearance of {model.name!r}")
+
+        n, sigma_t, sigma_r = self.n_particles, self.sigma_t, self.sigma_r
+        messages: dict[int, SE3KDE | None] = {}
+        beliefs: dict[int, SE3KDE] = {}
+        for i in model.leaves():
+            ev, pot = evidence[i], model.features[i].potential
+            messages[i] = (
+                None
+                if ev is None or pot is None
+                else push_up(ev.density, pot, n, sigma_t, sigma_r, gen)
+            )
+        for i in model.bottom_up_order():
+            feature = model.features[i]
+            incoming = [messages[c] for c in feature.children if messages[c] is not None]
+            if not incoming:
+                messages[i] = None
+                continue
+            beliefs[i] = multiply(incoming, n, self.floor, self.cutoff, gen)
+            pot = feature.potential
+            messages[i] = (
+                None if pot is None else push_up(beliefs[i], pot, n, sigma_t, sigma_r, gen)
+            )
+
+        root = beliefs[model.root]
+        to_object = inverse(model.features[model.root].frame.to(device))
+        object_belief = SE3KDE(
+            compose(root.points, to_object), root.weights, sigma_t=sigma_t, sigma_r=sigma_r
+        )
+        candidates, _ = object_belief.modes(
+            k=self.n_modes, n_starts=self.mode_starts, generator=gen
+        )
+        match = SceneMatch.build(model, evidence, self.color_sigma)
+        if self.refine_sigma_t > 0:
+            candidates = torch.stack(
+                [match.refine(p, self.refine_sigma_t, self.refine_iters) for p in candidates]
+            )
+        scores = match.support(candidates, self.evidence_sigma_t, self.evidence_sigma_r)
+        order = torch.argsort(scores, descending=True)
+        result = NBPResult(
+            candidates[order], scores[order], object_belief, messages, beliefs, evidence
+        )
+        if self.top_down:
+            result.beliefs.update(top_down(model, result, n, sigma_t, sigma_r, self.cutoff, gen))
+        return result
 
 
 @dataclass
@@ -322,8 +361,10 @@ class SceneMatch:
 
     @classmethod
     def build(
-        cls, model: ObjectModel, evidence: dict[int, Evidence | None], config: NBPConfig
+        cls, model: ObjectModel, evidence: dict[int, Evidence | None], color_sigma: float
     ) -> SceneMatch:
+        """The match of ``model`` against ``evidence``; ``color_sigma`` scales the colour
+        similarity."""
         inst, obs, inst_c, obs_c, inst_l, obs_l = [], [], [], [], [], []
         for leaf, ev in evidence.items():
             if ev is None:
@@ -337,7 +378,7 @@ class SceneMatch:
             obs_l.append(torch.full((len(obs[-1]),), leaf, device=ev.colors.device))
         same = torch.cat(inst_l)[:, None] == torch.cat(obs_l)[None]
         d2 = torch.cdist(torch.cat(inst_c), torch.cat(obs_c)).square()
-        affinity = same * torch.exp(-0.5 * d2 / config.color_sigma**2)
+        affinity = same * torch.exp(-0.5 * d2 / color_sigma**2)
         return cls(torch.cat(inst), torch.cat(obs), affinity)
 
     def predict(self, poses: Tensor) -> Tensor:
@@ -381,15 +422,28 @@ class SceneMatch:
 
 
 def top_down(
-    model: ObjectModel, result: NBPResult, config: NBPConfig, generator: torch.Generator
+    model: ObjectModel,
+    result: NBPResult,
+    n: int,
+    sigma_t: float,
+    sigma_r: float,
+    cutoff: float | None,
+    generator: torch.Generator,
 ) -> dict[int, SE3KDE]:
     """Top-down pass: every feature's belief given the root's (X_c = X_p ∘ r, r ~ psi_pc,
     reweighted by the child's bottom-up belief or evidence).
 
+    Args:
+        model: the object model.
+        result: the bottom-up pass (its root belief and evidence are used).
+        n: particles per belief.
+        sigma_t, sigma_r: bandwidth of the beliefs.
+        cutoff: kernel cut-off (multiples of sigma_t) of the reweighting, or None.
+        generator: random generator.
+
     Returns:
         feature index -> belief of its world pose.
     """
-    cfg = config
     root = model.root
     out: dict[int, SE3KDE] = {root: result.beliefs[root]}
     stack = [root]
@@ -399,7 +453,6 @@ def top_down(
         for c in model.features[p].children:
             pot = model.features[c].potential
             assert pot is not None
-            n = cfg.n_particles
             i = torch.multinomial(parent.weights, n, replacement=True, generator=generator)
             j = torch.multinomial(pot.weights.to(parent.device), n, True, generator=generator)
             x = compose(parent.points[i], pot.points.to(parent.device)[j])
@@ -407,9 +460,9 @@ def top_down(
             local = result.beliefs.get(c) if c in result.beliefs else ev and ev.density
             w = None
             if local is not None:
-                w = local.evaluate(x, cutoff=cfg.cutoff)
+                w = local.evaluate(x, cutoff=cutoff)
                 w = None if not (w.sum() > 0) else w
-            out[c] = SE3KDE(x, w, sigma_t=cfg.sigma_t, sigma_r=cfg.sigma_r)
+            out[c] = SE3KDE(x, w, sigma_t=sigma_t, sigma_r=sigma_r)
             if not model.features[c].is_primitive:
                 stack.append(c)
     return out

@@ -19,6 +19,7 @@ Conventions, used throughout the project:
 
 from vistask.se3.bandwidth import (
     cross_validate_bandwidth,
+    fit_density,
     rule_of_thumb_bandwidth,
     select_bandwidth,
 )
@@ -52,6 +53,7 @@ __all__ = [
     "check_r3s2",
     "compose",
     "cross_validate_bandwidth",
+    "fit_density",
     "identity_poses",
     "inverse",
     "make_poses",

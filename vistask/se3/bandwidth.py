@@ -9,7 +9,8 @@ import math
 
 import torch
 
-from vistask.se3.kde import SE3KDE, KernelDensity, _normalise_weights, _principal_axis
+from vistask.se3 import kernels
+from vistask.se3.kde import SE3KDE, KernelDensity
 from vistask.se3.r3s2 import R3S2KDE
 
 DEFAULT_FACTORS = (0.25, 0.35, 0.5, 0.7, 1.0, 1.4, 2.0)
@@ -40,14 +41,14 @@ def rule_of_thumb_bandwidth(
     """
     space = _space(points)
     points = space.check_points(points, "points", batched=True)
-    w = _normalise_weights(weights, points).double()
+    w = kernels.normalise_weights(weights, points).double()
     t, u = points[:, :3].double(), points[:, 3:].double()
     n_eff = 1.0 / float((w**2).sum())
     rot_dims = 3 if space is SE3KDE else 2
     factor = n_eff ** (-1.0 / (3 + rot_dims + 4))
     centred = t - w @ t
     spread_t = math.sqrt(float(w @ (centred**2).sum(1)) / 3.0)
-    angles = space.direction_angle(u, _principal_axis(u, w)[None, :])
+    angles = space.direction_angle(u, kernels.principal_axis(u, w)[None, :])
     spread_r = math.sqrt(float(w @ angles**2) / rot_dims)
     if spread_t <= 0 or spread_r <= 0:
         raise ValueError("the rule of thumb needs particles that spread in position and direction")
@@ -82,7 +83,7 @@ def cross_validate_bandwidth(
     """
     space = _space(points)
     points = space.check_points(points, "points", batched=True)
-    w = _normalise_weights(weights, points)
+    w = kernels.normalise_weights(weights, points)
     if points.shape[0] < 2:
         raise ValueError("cross-validation needs at least 2 particles")
     if sigma_t_grid is None or sigma_r_grid is None:
@@ -122,15 +123,50 @@ def select_bandwidth(
     points: torch.Tensor,
     weights: torch.Tensor | None = None,
     method: str = "rule",
-    **kwargs,
+    sigma_t_grid: torch.Tensor | list[float] | None = None,
+    sigma_r_grid: torch.Tensor | list[float] | None = None,
+    max_points: int = 1000,
+    generator: torch.Generator | None = None,
 ) -> tuple[float, float]:
     """(sigma_t, sigma_r) by the rule of thumb (``method="rule"``) or cross-validation ("cv").
 
-    Keyword arguments go to ``cross_validate_bandwidth``.
+    Args:
+        points: (N, 7) poses or (N, 6) [t, v] points.
+        weights: (N,) weights or None.
+        method: "rule" (``rule_of_thumb_bandwidth``) or "cv" (``cross_validate_bandwidth``).
+        sigma_t_grid, sigma_r_grid, max_points, generator: cross-validation settings (see
+            ``cross_validate_bandwidth``); unused by the rule of thumb.
     """
     if method == "rule":
         return rule_of_thumb_bandwidth(points, weights)
     if method == "cv":
-        sigma_t, sigma_r, _ = cross_validate_bandwidth(points, weights, **kwargs)
+        sigma_t, sigma_r, _ = cross_validate_bandwidth(
+            points, weights, sigma_t_grid, sigma_r_grid, max_points, generator
+        )
         return sigma_t, sigma_r
     raise ValueError(f"method must be 'rule' or 'cv', got {method!r}")
+
+
+def fit_density(
+    points: torch.Tensor,
+    weights: torch.Tensor | None = None,
+    method: str = "rule",
+    kernel: str = "gaussian",
+    sigma_t_grid: torch.Tensor | list[float] | None = None,
+    sigma_r_grid: torch.Tensor | list[float] | None = None,
+    max_points: int = 1000,
+    generator: torch.Generator | None = None,
+) -> SE3KDE | R3S2KDE:
+    """A density of ``points`` with its bandwidth chosen by ``select_bandwidth``.
+
+    Args:
+        points: (N, 7) poses (gives an ``SE3KDE``) or (N, 6) [t, v] points (an ``R3S2KDE``).
+        weights: (N,) weights or None.
+        method: "rule" or "cv" (see ``select_bandwidth``).
+        kernel: position kernel of the density, "gaussian" or "triangular".
+        sigma_t_grid, sigma_r_grid, max_points, generator: cross-validation settings.
+    """
+    sigma_t, sigma_r = select_bandwidth(
+        points, weights, method, sigma_t_grid, sigma_r_grid, max_points, generator
+    )
+    return _space(points)(points, weights, sigma_t, sigma_r, kernel=kernel)

@@ -2,6 +2,9 @@
 
 A density is f(x) = sum_i w_i K(x; x_i) over weighted particles x_i = (t_i, u_i) with one
 bandwidth pair (sigma_t, sigma_r); see ``vistask.se3`` for the conventions.
+
+Imports go one way: ``r3s2`` (the R^3 x S^2 densities, projection of SE(3) densities) and
+``bandwidth`` (bandwidth selection, ``fit_density``) build on this module, never the reverse.
 """
 
 from __future__ import annotations
@@ -64,7 +67,7 @@ class KernelDensity:
         self.kernel = kernels.check_kernel(kernel)
         self.kappa = self.kappa_from_sigma(self.sigma_r)
         self._points = points
-        self._weights = _normalise_weights(weights, points)
+        self._weights = kernels.normalise_weights(weights, points)
         self._terms: kernels.PairTerms | None = None
         self._grids: dict[float, tuple[CellIndex, torch.Tensor, torch.Tensor, torch.Tensor]] = {}
         self.last_evaluated_pairs: int | None = None
@@ -308,7 +311,7 @@ class KernelDensity:
     def mean(self) -> torch.Tensor:
         """(3 + D,) weighted mean position and mean axis (top eigenvector of sum w u u^T)."""
         t = self._weights @ self._points[:, :3]
-        return torch.cat([t, _principal_axis(self._points[:, 3:], self._weights)])
+        return torch.cat([t, kernels.principal_axis(self._points[:, 3:], self._weights)])
 
     def moments(self) -> dict[str, torch.Tensor]:
         """Mean (3 + D,), position covariance (3, 3) and direction scatter sum w u u^T (D, D)."""
@@ -371,21 +374,6 @@ class KernelDensity:
         """(3 + D,) the highest mode found by ``modes``."""
         return self.modes(k=1, **kwargs)[0][0]
 
-    @classmethod
-    def fit(
-        cls: type[D],
-        points: torch.Tensor,
-        weights: torch.Tensor | None = None,
-        method: str = "rule",
-        kernel: str = "gaussian",
-        **kwargs,
-    ) -> D:
-        """(N, 3 + D) points -> density, bandwidth from ``bandwidth.select_bandwidth``."""
-        from vistask.se3.bandwidth import select_bandwidth
-
-        sigma_t, sigma_r = select_bandwidth(points, weights, method=method, **kwargs)
-        return cls(points, weights, sigma_t, sigma_r, kernel=kernel)
-
     # --- persistence and devices ------------------------------------------------------------
     def state_dict(self) -> dict:
         return {
@@ -426,23 +414,6 @@ class KernelDensity:
         return self._new(self._points.to(device), self._weights.to(device))
 
 
-def _normalise_weights(weights: torch.Tensor | None, points: torch.Tensor) -> torch.Tensor:
-    n = points.shape[0]
-    if weights is None:
-        return torch.full((n,), 1.0 / n, dtype=points.dtype, device=points.device)
-    if not isinstance(weights, torch.Tensor):
-        weights = torch.as_tensor(weights)
-    if weights.shape != (n,):
-        raise ValueError(f"weights must have shape ({n},), got {tuple(weights.shape)}")
-    weights = weights.to(dtype=points.dtype, device=points.device)
-    if not torch.isfinite(weights).all() or (weights < 0).any():
-        raise ValueError("weights must be finite and non-negative")
-    total = weights.sum()
-    if not total > 0:
-        raise ValueError("the total weight must be positive (all weights are zero)")
-    return weights / total
-
-
 def _apply_weighting(fn: Weighting, points: torch.Tensor, name: str) -> torch.Tensor:
     values = fn.evaluate(points) if isinstance(fn, KernelDensity) else fn(points)
     values = torch.as_tensor(values, dtype=points.dtype, device=points.device)
@@ -450,13 +421,6 @@ def _apply_weighting(fn: Weighting, points: torch.Tensor, name: str) -> torch.Te
         got = tuple(values.shape)
         raise ValueError(f"{name} must return shape ({points.shape[0]},), got {got}")
     return values
-
-
-def _principal_axis(u: torch.Tensor, weights: torch.Tensor) -> torch.Tensor:
-    """Top eigenvector of sum_i w_i u_i u_i^T: the sign-invariant mean axis, last entry >= 0."""
-    scatter = (u * weights[:, None]).T @ u
-    axis = torch.linalg.eigh(scatter.double())[1][:, -1].to(u.dtype)
-    return axis if axis[-1] >= 0 else -axis
 
 
 def product(
@@ -548,23 +512,3 @@ class SE3KDE(KernelDensity):
     @staticmethod
     def direction_angle(u: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
         return 2.0 * torch.acos((u * v).sum(-1).abs().clamp(max=1.0))
-
-    def project(self, axis: int = 2, sigma_r: float | None = None):
-        """The R^3 x S^2 density of (position, rotated ``axis``) of the particles.
-
-        Args:
-            axis: which column of the rotation matrix (0: x, 1: y, 2: z).
-            sigma_r: direction bandwidth of the result (default: this density's sigma_r).
-
-        Returns:
-            an ``R3S2KDE`` with the same weights and position bandwidth.
-        """
-        from vistask.se3.r3s2 import R3S2KDE, project_se3_to_r3s2
-
-        return R3S2KDE(
-            project_se3_to_r3s2(self._points, axis),
-            self._weights,
-            sigma_t=self.sigma_t,
-            sigma_r=self.sigma_r if sigma_r is None else sigma_r,
-            kernel=self.kernel,
-        )

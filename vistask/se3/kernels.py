@@ -87,6 +87,31 @@ def log_position_normalizer(sigma_t: float, kernel: str) -> float:
     return math.log(math.pi * (2.0 * sigma_t) ** 3 / 3.0)
 
 
+def normalise_weights(weights: torch.Tensor | None, points: torch.Tensor) -> torch.Tensor:
+    """(N,) particle weights checked and scaled to sum 1 (uniform when None) for (N, .) points."""
+    n = points.shape[0]
+    if weights is None:
+        return torch.full((n,), 1.0 / n, dtype=points.dtype, device=points.device)
+    if not isinstance(weights, torch.Tensor):
+        weights = torch.as_tensor(weights)
+    if weights.shape != (n,):
+        raise ValueError(f"weights must have shape ({n},), got {tuple(weights.shape)}")
+    weights = weights.to(dtype=points.dtype, device=points.device)
+    if not torch.isfinite(weights).all() or (weights < 0).any():
+        raise ValueError("weights must be finite and non-negative")
+    total = weights.sum()
+    if not total > 0:
+        raise ValueError("the total weight must be positive (all weights are zero)")
+    return weights / total
+
+
+def principal_axis(u: torch.Tensor, weights: torch.Tensor) -> torch.Tensor:
+    """Top eigenvector of sum_i w_i u_i u_i^T: the sign-invariant mean axis, last entry >= 0."""
+    scatter = (u * weights[:, None]).T @ u
+    axis = torch.linalg.eigh(scatter.double())[1][:, -1].to(u.dtype)
+    return axis if axis[-1] >= 0 else -axis
+
+
 def sample_axial_vmf(
     mu: torch.Tensor, kappa: float, generator: torch.Generator | None = None
 ) -> torch.Tensor:

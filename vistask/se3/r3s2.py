@@ -8,7 +8,7 @@ import roma
 import torch
 
 from vistask.se3 import kernels
-from vistask.se3.kde import KernelDensity
+from vistask.se3.kde import SE3KDE, KernelDensity
 from vistask.se3.poses import check_poses, check_unit
 
 
@@ -64,3 +64,23 @@ class R3S2KDE(KernelDensity):
     @staticmethod
     def direction_angle(u: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
         return torch.acos((u * v).sum(-1).abs().clamp(max=1.0))
+
+    @classmethod
+    def from_se3(cls, density: SE3KDE, axis: int = 2, sigma_r: float | None = None) -> R3S2KDE:
+        """The R^3 x S^2 density of (position, rotated ``axis``) of an SE(3) density's particles.
+
+        Args:
+            density: the SE(3) density.
+            axis: which column of the rotation matrix (0: x, 1: y, 2: z).
+            sigma_r: direction bandwidth of the result (default: the density's sigma_r).
+
+        Returns:
+            an ``R3S2KDE`` with the same weights, position bandwidth and kernel.
+        """
+        return cls(
+            project_se3_to_r3s2(density.points, axis),
+            density.weights,
+            sigma_t=density.sigma_t,
+            sigma_r=density.sigma_r if sigma_r is None else sigma_r,
+            kernel=density.kernel,
+        )

@@ -14,19 +14,18 @@ from vistask.vision.camera import (
     pixel_grid,
     project,
 )
-from vistask.vision.patches import PatchConfig, Patches, extract_patches
+from vistask.vision.patches import Patches, PatchExtractor
 from vistask.vision.symmetry import Symmetry, pose_error
 from vistask.vision.views import object_patch_set, view_patches
 
 __all__ = [
     "Camera",
-    "PatchConfig",
+    "PatchExtractor",
     "Patches",
     "RGBDView",
     "Symmetry",
     "backproject",
     "depth_buffer_to_metres",
-    "extract_patches",
     "intrinsics_from_fovy",
     "look_at",
     "object_patch_set",

@@ -8,7 +8,7 @@ Conventions (used by the whole of ``vistask.vision``):
   in the camera frame (MuJoCo's depth buffer is z-depth, not ray length).
 - ``cam_to_world`` (4, 4) maps camera-frame points to world points.
 
-Everything here is pure torch: robosuite only fills these structures (``vistask.envs.tabletop``).
+Everything here is pure torch: robosuite only fills these structures (``vistask.envs.scene``).
 """
 
 from __future__ import annotations

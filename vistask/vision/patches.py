@@ -201,42 +201,6 @@ class Patches:
         return cls(**state)
 
 
-@dataclass(frozen=True)
-class PatchConfig:
-    """Parameters of patch extraction (pixel sizes assume images of a few hundred pixels).
-
-    Attributes:
-        spacing: at most one patch per ``spacing`` x ``spacing`` pixel cell.
-        canny_low, canny_high: Canny hysteresis thresholds (on 0-255 grey levels).
-        blur_sigma: Gaussian blur (pixels) before edge detection and gradients.
-        depth_jump: metres; a larger step between neighbours is an occluding contour, and
-            samples farther than this from the patch depth lie on another surface.
-        tangent_radius: pixels; the 3-D direction is fitted to points up to this far along
-            the 2-D edge tangent.
-        min_tangent_points: fewer valid tangent samples than this drop the patch.
-        color_offset: pixels; side colours are read this far from the edge along its normal.
-        normal_radius: half window (pixels) of the surface-normal fit; 0 disables normals.
-        max_depth: metres; farther pixels (background, far plane) count as invalid.
-    """
-
-    spacing: int = 4
-    canny_low: float = 20.0
-    canny_high: float = 50.0
-    blur_sigma: float = 1.0
-    depth_jump: float = 0.01
-    tangent_radius: int = 3
-    min_tangent_points: int = 4
-    color_offset: float = 2.5
-    normal_radius: int = 3
-    max_depth: float = 5.0
-
-    def __post_init__(self) -> None:
-        if self.spacing < 1 or self.tangent_radius < 1 or self.color_offset <= 0:
-            raise ValueError("spacing, tangent_radius and color_offset must be positive")
-        if self.normal_radius < 0 or self.depth_jump <= 0 or self.max_depth <= 0:
-            raise ValueError("normal_radius must be >= 0, depth_jump and max_depth > 0")
-
-
 def _gather(image: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
     """image[v, u] with rounding; out-of-image samples read NaN. u, v: same shape (...)."""
     H, W = image.shape[:2]
@@ -302,154 +266,216 @@ def _depth_edges(depth: np.ndarray, jump: float) -> np.ndarray:
     return edge & ~np.isnan(depth)
 
 
-def extract_patches(
-    rgb: Tensor,
-    depth: Tensor,
-    camera: Camera,
-    mask: Tensor | None = None,
-    config: PatchConfig | None = None,
-    device: torch.device | str | None = None,
-) -> Patches:
-    """Extract 3-D oriented appearance patches from one RGB-D image.
+class PatchExtractor:
+    """Extracts 3-D oriented appearance patches from one RGB-D image.
+
+    Call it on an image: ``PatchExtractor()(rgb, depth, camera)``. Pixel sizes assume images
+    of a few hundred pixels.
 
     Args:
-        rgb: (H, W, 3) uint8 image, OpenCV orientation (row 0 at the top).
-        depth: (H, W) z-depth in metres (non-finite or <= 0 where invalid).
-        camera: the camera (intrinsics, camera-to-world) of the image.
-        mask: (H, W) bool; only contours on these pixels are used, and depth is read
-            only from them (object isolation with a segmentation mask).
-        config: extraction parameters (defaults: ``PatchConfig()``).
-        device: device of the returned tensors (default CPU).
-
-    Returns:
-        Patches in world coordinates, with ``pixels`` set.
+        spacing: at most one patch per ``spacing`` x ``spacing`` pixel cell.
+        canny_low, canny_high: Canny hysteresis thresholds (on 0-255 grey levels).
+        blur_sigma: Gaussian blur (pixels) before edge detection and gradients.
+        depth_jump: metres; a larger step between neighbours is an occluding contour, and
+            samples farther than this from the patch depth lie on another surface.
+        tangent_radius: pixels; the 3-D direction is fitted to points up to this far along
+            the 2-D edge tangent.
+        min_tangent_points: fewer valid tangent samples than this drop the patch.
+        color_offset: pixels; side colours are read this far from the edge along its normal.
+        normal_radius: half window (pixels) of the surface-normal fit; 0 disables normals.
+        max_depth: metres; farther pixels (background, far plane) count as invalid.
 
     Raises:
-        ValueError: bad shapes, an empty mask, no valid depth, or no patch found.
+        ValueError: spacing or tangent_radius below 1, normal_radius below 0, or color_offset,
+            depth_jump or max_depth not positive.
     """
-    cfg = config or PatchConfig()
-    H, W = camera.height, camera.width
-    if tuple(rgb.shape) != (H, W, 3) or rgb.dtype != torch.uint8:
-        raise ValueError(f"rgb must be uint8 ({H}, {W}, 3), got {rgb.dtype} {tuple(rgb.shape)}")
-    if tuple(depth.shape) != (H, W):
-        raise ValueError(f"depth must have shape ({H}, {W}), got {tuple(depth.shape)}")
-    image = np.ascontiguousarray(rgb.cpu().numpy())
-    z = depth.detach().cpu().numpy().astype(np.float32)
-    valid = np.isfinite(z) & (z > 0) & (z < cfg.max_depth)
-    if mask is not None:
-        if tuple(mask.shape) != (H, W):
-            raise ValueError(f"mask must have shape ({H}, {W}), got {tuple(mask.shape)}")
-        mask_np = mask.cpu().numpy().astype(bool)
-        if not mask_np.any():
-            raise ValueError("empty mask: the object is not visible in this image")
-        valid &= mask_np
-    if not valid.any():
-        raise ValueError(
-            "empty point cloud: no pixel with valid depth"
-            + (" in the mask" if mask is not None else "")
+
+    def __init__(
+        self,
+        spacing: int = 4,
+        canny_low: float = 20.0,
+        canny_high: float = 50.0,
+        blur_sigma: float = 1.0,
+        depth_jump: float = 0.01,
+        tangent_radius: int = 3,
+        min_tangent_points: int = 4,
+        color_offset: float = 2.5,
+        normal_radius: int = 3,
+        max_depth: float = 5.0,
+    ) -> None:
+        for name, value in (("spacing", spacing), ("tangent_radius", tangent_radius)):
+            if value < 1:
+                raise ValueError(f"{name} must be >= 1 (pixels), got {value}")
+        if normal_radius < 0:
+            raise ValueError(f"normal_radius must be >= 0 (0: no normals), got {normal_radius}")
+        for name, value in (
+            ("color_offset", color_offset),
+            ("depth_jump", depth_jump),
+            ("max_depth", max_depth),
+        ):
+            if not value > 0:
+                raise ValueError(f"{name} must be positive, got {value}")
+        self.spacing = spacing
+        self.canny_low = canny_low
+        self.canny_high = canny_high
+        self.blur_sigma = blur_sigma
+        self.depth_jump = depth_jump
+        self.tangent_radius = tangent_radius
+        self.min_tangent_points = min_tangent_points
+        self.color_offset = color_offset
+        self.normal_radius = normal_radius
+        self.max_depth = max_depth
+
+    def __call__(
+        self,
+        rgb: Tensor,
+        depth: Tensor,
+        camera: Camera,
+        mask: Tensor | None = None,
+        device: torch.device | str | None = None,
+    ) -> Patches:
+        """Extract 3-D oriented appearance patches from one RGB-D image.
+
+        Args:
+            rgb: (H, W, 3) uint8 image, OpenCV orientation (row 0 at the top).
+            depth: (H, W) z-depth in metres (non-finite or <= 0 where invalid).
+            camera: the camera (intrinsics, camera-to-world) of the image.
+            mask: (H, W) bool; only contours on these pixels are used, and depth is read
+                only from them (object isolation with a segmentation mask).
+            device: device of the returned tensors (default CPU).
+
+        Returns:
+            Patches in world coordinates, with ``pixels`` set.
+
+        Raises:
+            ValueError: bad shapes, an empty mask, no valid depth, or no patch found.
+        """
+        H, W = camera.height, camera.width
+        if tuple(rgb.shape) != (H, W, 3) or rgb.dtype != torch.uint8:
+            raise ValueError(f"rgb must be uint8 ({H}, {W}, 3), got {rgb.dtype} {tuple(rgb.shape)}")
+        if tuple(depth.shape) != (H, W):
+            raise ValueError(f"depth must have shape ({H}, {W}), got {tuple(depth.shape)}")
+        image = np.ascontiguousarray(rgb.cpu().numpy())
+        z = depth.detach().cpu().numpy().astype(np.float32)
+        valid = np.isfinite(z) & (z > 0) & (z < self.max_depth)
+        if mask is not None:
+            if tuple(mask.shape) != (H, W):
+                raise ValueError(f"mask must have shape ({H}, {W}), got {tuple(mask.shape)}")
+            mask_np = mask.cpu().numpy().astype(bool)
+            if not mask_np.any():
+                raise ValueError("empty mask: the object is not visible in this image")
+            valid &= mask_np
+        if not valid.any():
+            raise ValueError(
+                "empty point cloud: no pixel with valid depth"
+                + (" in the mask" if mask is not None else "")
+            )
+        z = np.where(valid, z, np.nan)
+
+        # Contours: intensity edges (Canny) plus occluding contours (depth steps), which catch
+        # object outlines that have the background's colour.
+        grey = cv2.GaussianBlur(
+            cv2.cvtColor(image, cv2.COLOR_RGB2GRAY).astype(np.float32), (0, 0), self.blur_sigma
         )
-    z = np.where(valid, z, np.nan)
-
-    # Contours: intensity edges (Canny) plus occluding contours (depth steps), which catch
-    # object outlines that have the background's colour.
-    grey = cv2.GaussianBlur(
-        cv2.cvtColor(image, cv2.COLOR_RGB2GRAY).astype(np.float32), (0, 0), cfg.blur_sigma
-    )
-    canny = (
-        cv2.Canny(
-            grey.clip(0, 255).astype(np.uint8), cfg.canny_low, cfg.canny_high, L2gradient=True
+        canny = (
+            cv2.Canny(
+                grey.clip(0, 255).astype(np.uint8), self.canny_low, self.canny_high, L2gradient=True
+            )
+            > 0
         )
-        > 0
-    )
-    depth_edge = _depth_edges(z, cfg.depth_jump)
-    candidates = (canny | depth_edge) & valid
+        depth_edge = _depth_edges(z, self.depth_jump)
+        candidates = (canny | depth_edge) & valid
 
-    # 2-D edge normal: the intensity gradient, or across the depth step for depth-only edges.
-    gx = cv2.Sobel(grey, cv2.CV_32F, 1, 0, ksize=3)
-    gy = cv2.Sobel(grey, cv2.CV_32F, 0, 1, ksize=3)
-    filled = np.where(valid, z, np.nanmax(z) + 10 * cfg.depth_jump).astype(np.float32)
-    dx = cv2.Sobel(filled, cv2.CV_32F, 1, 0, ksize=3)
-    dy = cv2.Sobel(filled, cv2.CV_32F, 0, 1, ksize=3)
-    vs, us = np.nonzero(candidates)
-    g = np.stack([gx[vs, us], gy[vs, us]], -1)
-    dg = np.stack([dx[vs, us], dy[vs, us]], -1)
-    use_grey = canny[vs, us] & (np.linalg.norm(g, axis=-1) > 1e-3)
-    n2 = np.where(use_grey[:, None], g, dg)
-    strength = np.linalg.norm(g, axis=-1) + 1e3 * depth_edge[vs, us]
-    keep = np.linalg.norm(n2, axis=-1) > 1e-6
-    vs, us, n2, strength = vs[keep], us[keep], n2[keep], strength[keep]
+        # 2-D edge normal: the intensity gradient, or across the depth step for depth-only edges.
+        gx = cv2.Sobel(grey, cv2.CV_32F, 1, 0, ksize=3)
+        gy = cv2.Sobel(grey, cv2.CV_32F, 0, 1, ksize=3)
+        filled = np.where(valid, z, np.nanmax(z) + 10 * self.depth_jump).astype(np.float32)
+        dx = cv2.Sobel(filled, cv2.CV_32F, 1, 0, ksize=3)
+        dy = cv2.Sobel(filled, cv2.CV_32F, 0, 1, ksize=3)
+        vs, us = np.nonzero(candidates)
+        g = np.stack([gx[vs, us], gy[vs, us]], -1)
+        dg = np.stack([dx[vs, us], dy[vs, us]], -1)
+        use_grey = canny[vs, us] & (np.linalg.norm(g, axis=-1) > 1e-3)
+        n2 = np.where(use_grey[:, None], g, dg)
+        strength = np.linalg.norm(g, axis=-1) + 1e3 * depth_edge[vs, us]
+        keep = np.linalg.norm(n2, axis=-1) > 1e-6
+        vs, us, n2, strength = vs[keep], us[keep], n2[keep], strength[keep]
 
-    # One patch per spacing x spacing cell: the strongest edge pixel in it.
-    s = cfg.spacing
-    cell = (vs // s) * (W // s + 1) + us // s
-    order = np.lexsort((-strength, cell))
-    first = np.ones(len(order), dtype=bool)
-    first[1:] = cell[order][1:] != cell[order][:-1]
-    sel = order[first]
-    vs, us = vs[sel], us[sel]
-    n2 = n2[sel] / np.linalg.norm(n2[sel], axis=-1, keepdims=True)
+        # One patch per spacing x spacing cell: the strongest edge pixel in it.
+        s = self.spacing
+        cell = (vs // s) * (W // s + 1) + us // s
+        order = np.lexsort((-strength, cell))
+        first = np.ones(len(order), dtype=bool)
+        first[1:] = cell[order][1:] != cell[order][:-1]
+        sel = order[first]
+        vs, us = vs[sel], us[sel]
+        n2 = n2[sel] / np.linalg.norm(n2[sel], axis=-1, keepdims=True)
 
-    # Depth of the patch: its own, unless it lies just outside an occluding contour (a
-    # neighbour is the near side of a depth edge); then that of the nearest occluder pixel.
-    du, dv = _window_offsets(1)
-    win_u, win_v = us[:, None] + du, vs[:, None] + dv
-    win_d = _gather(z, win_u, win_v)
-    own = z[vs, us]
-    occluder = (_gather(depth_edge, win_u, win_v) == 1) & (own[:, None] - win_d > cfg.depth_jump)
-    ref = np.where(occluder.any(-1), np.where(occluder, win_d, np.inf).min(-1), own)
-    cu, cv, d0, _ = _surface_pixel(z, us, vs, ref, cfg.depth_jump)
-    uf, vf = us.astype(np.float32), vs.astype(np.float32)
+        # Depth of the patch: its own, unless it lies just outside an occluding contour (a
+        # neighbour is the near side of a depth edge); then that of the nearest occluder pixel.
+        du, dv = _window_offsets(1)
+        win_u, win_v = us[:, None] + du, vs[:, None] + dv
+        win_d = _gather(z, win_u, win_v)
+        own = z[vs, us]
+        occluder = (_gather(depth_edge, win_u, win_v) == 1) & (
+            own[:, None] - win_d > self.depth_jump
+        )
+        ref = np.where(occluder.any(-1), np.where(occluder, win_d, np.inf).min(-1), own)
+        cu, cv, d0, _ = _surface_pixel(z, us, vs, ref, self.depth_jump)
+        uf, vf = us.astype(np.float32), vs.astype(np.float32)
 
-    # Side colours; orient n2 towards the brighter side.
-    smooth = cv2.blur(image.astype(np.float32) / 255.0, (3, 3))
-    off = cfg.color_offset * n2
-    plus = _gather(smooth, uf + off[:, 0], vf + off[:, 1])
-    minus = _gather(smooth, uf - off[:, 0], vf - off[:, 1])
-    plus = np.where(np.isnan(plus), smooth[vs, us], plus)
-    minus = np.where(np.isnan(minus), smooth[vs, us], minus)
-    flip = plus @ _LUMA < minus @ _LUMA
-    n2 = np.where(flip[:, None], -n2, n2)
-    colors = np.stack(
-        [np.where(flip[:, None], plus, minus), np.where(flip[:, None], minus, plus)], 1
-    )
-    # Tangent with the bright side on its left as seen in the image (rows grow downwards).
-    t2 = np.stack([-n2[:, 1], n2[:, 0]], -1)
+        # Side colours; orient n2 towards the brighter side.
+        smooth = cv2.blur(image.astype(np.float32) / 255.0, (3, 3))
+        off = self.color_offset * n2
+        plus = _gather(smooth, uf + off[:, 0], vf + off[:, 1])
+        minus = _gather(smooth, uf - off[:, 0], vf - off[:, 1])
+        plus = np.where(np.isnan(plus), smooth[vs, us], plus)
+        minus = np.where(np.isnan(minus), smooth[vs, us], minus)
+        flip = plus @ _LUMA < minus @ _LUMA
+        n2 = np.where(flip[:, None], -n2, n2)
+        colors = np.stack(
+            [np.where(flip[:, None], plus, minus), np.where(flip[:, None], minus, plus)], 1
+        )
+        # Tangent with the bright side on its left as seen in the image (rows grow downwards).
+        t2 = np.stack([-n2[:, 1], n2[:, 0]], -1)
 
-    # 3-D direction: least-squares line through back-projected samples along the tangent,
-    # parametrised by the signed step k, so its sign follows t2.
-    k = np.arange(-cfg.tangent_radius, cfg.tangent_radius + 1, dtype=np.float32)
-    tu = uf[:, None] + k * t2[:, :1]
-    tv = vf[:, None] + k * t2[:, 1:]
-    tol = cfg.depth_jump * np.maximum(1.0, np.abs(k))
-    su, sv, sd, found = _surface_pixel(z, tu, tv, d0[:, None], tol)
-    tw = found.astype(np.float64)
-    K_, T_ = camera.K.double(), camera.cam_to_world.double()
-    pts = _backproject_np(su, sv, sd, K_, T_)  # (N, K, 3)
-    wsum = tw.sum(-1, keepdims=True)
-    kbar = (tw * k).sum(-1, keepdims=True) / wsum.clip(1e-9)
-    xbar = (tw[..., None] * pts).sum(1) / wsum.clip(1e-9)
-    kc = (k - kbar) * tw
-    direction = (kc[..., None] * (pts - xbar[:, None])).sum(1)
-    ok = (wsum[:, 0] >= cfg.min_tangent_points) & (np.linalg.norm(direction, axis=-1) > 1e-9)
+        # 3-D direction: least-squares line through back-projected samples along the tangent,
+        # parametrised by the signed step k, so its sign follows t2.
+        k = np.arange(-self.tangent_radius, self.tangent_radius + 1, dtype=np.float32)
+        tu = uf[:, None] + k * t2[:, :1]
+        tv = vf[:, None] + k * t2[:, 1:]
+        tol = self.depth_jump * np.maximum(1.0, np.abs(k))
+        su, sv, sd, found = _surface_pixel(z, tu, tv, d0[:, None], tol)
+        tw = found.astype(np.float64)
+        K_, T_ = camera.K.double(), camera.cam_to_world.double()
+        pts = _backproject_np(su, sv, sd, K_, T_)  # (N, K, 3)
+        wsum = tw.sum(-1, keepdims=True)
+        kbar = (tw * k).sum(-1, keepdims=True) / wsum.clip(1e-9)
+        xbar = (tw[..., None] * pts).sum(1) / wsum.clip(1e-9)
+        kc = (k - kbar) * tw
+        direction = (kc[..., None] * (pts - xbar[:, None])).sum(1)
+        ok = (wsum[:, 0] >= self.min_tangent_points) & (np.linalg.norm(direction, axis=-1) > 1e-9)
 
-    positions = _backproject_np(cu, cv, d0, K_, T_)
-    normals = None
-    if cfg.normal_radius > 0:
-        normals, normal_ok = _fit_normals(z, cu, cv, d0, n2, cfg, K_, T_, positions)
-        ok &= normal_ok
-    if not ok.any():
-        raise ValueError("no patches found: no contour with valid depth")
+        positions = _backproject_np(cu, cv, d0, K_, T_)
+        normals = None
+        if self.normal_radius > 0:
+            normals, normal_ok = _fit_normals(
+                z, cu, cv, d0, n2, self.normal_radius, self.depth_jump, K_, T_, positions
+            )
+            ok &= normal_ok
+        if not ok.any():
+            raise ValueError("no patches found: no contour with valid depth")
 
-    def out(x: np.ndarray) -> Tensor:
-        return torch.from_numpy(np.ascontiguousarray(x[ok])).float().to(device or "cpu")
+        def out(x: np.ndarray) -> Tensor:
+            return torch.from_numpy(np.ascontiguousarray(x[ok])).float().to(device or "cpu")
 
-    return Patches(
-        positions=out(positions),
-        directions=F.normalize(out(direction), dim=-1),
-        colors=out(colors),
-        normals=None if normals is None else out(normals),
-        pixels=out(np.stack([cu, cv], -1)),
-    )
+        return Patches(
+            positions=out(positions),
+            directions=F.normalize(out(direction), dim=-1),
+            colors=out(colors),
+            normals=None if normals is None else out(normals),
+            pixels=out(np.stack([cu, cv], -1)),
+        )
 
 
 def _backproject_np(
@@ -466,7 +492,8 @@ def _fit_normals(
     v: np.ndarray,
     d0: np.ndarray,
     n2: np.ndarray,
-    cfg: PatchConfig,
+    normal_radius: int,
+    depth_jump: float,
     K: Tensor,
     T: Tensor,
     positions: np.ndarray,
@@ -481,11 +508,11 @@ def _fit_normals(
         u, v: (N,) patch pixels; d0: (N,) their depth; n2: (N, 2) unit 2-D edge normals.
         positions: (N, 3) patch positions (to orient the normals).
     """
-    du, dv = _window_offsets(cfg.normal_radius)
+    du, dv = _window_offsets(normal_radius)
     wu, wv = u[:, None] + du, v[:, None] + dv
     wd = _gather(z, wu, wv)
     ring = np.maximum(np.abs(du), np.abs(dv)).clip(1)
-    on_surface = np.abs(wd - d0[:, None]) < cfg.depth_jump * ring
+    on_surface = np.abs(wd - d0[:, None]) < depth_jump * ring
     side = du * n2[:, :1] + dv * n2[:, 1:]  # (N, K) signed pixel offset across the edge
     w = np.stack([on_surface & (side >= -0.5), on_surface & (side <= 0.5)], 1).astype(np.float64)
     pts = torch.from_numpy(_backproject_np(wu, wv, np.nan_to_num(wd, nan=1.0), K, T))[:, None]

@@ -8,13 +8,13 @@ from dataclasses import replace
 from torch import Tensor
 
 from vistask.vision.camera import RGBDView
-from vistask.vision.patches import PatchConfig, Patches, extract_patches
+from vistask.vision.patches import Patches, PatchExtractor
 
 
 def view_patches(
     view: RGBDView,
     label: int | None = None,
-    config: PatchConfig | None = None,
+    extractor: PatchExtractor | None = None,
     device: str | None = None,
 ) -> Patches:
     """World-frame patches of a view, restricted to object ``label`` when given.
@@ -22,23 +22,22 @@ def view_patches(
     Args:
         view: an RGB-D view (with segmentation when ``label`` is given).
         label: segmentation label of the object to isolate, or None for the whole image.
-        config: extraction parameters.
+        extractor: the patch extractor (default: ``PatchExtractor()``).
         device: device of the returned tensors.
 
     Raises:
         ValueError: the object is not visible, or no patch was found.
     """
     mask = None if label is None else view.mask(label)
-    return extract_patches(
-        view.rgb, view.depth, view.camera, mask=mask, config=config, device=device
-    )
+    extract = extractor or PatchExtractor()
+    return extract(view.rgb, view.depth, view.camera, mask=mask, device=device)
 
 
 def object_patch_set(
     views: Sequence[RGBDView],
     object_poses: Tensor,
     label: int = 0,
-    config: PatchConfig | None = None,
+    extractor: PatchExtractor | None = None,
     voxel: float | None = None,
     device: str | None = None,
 ) -> Patches:
@@ -52,7 +51,7 @@ def object_patch_set(
         views: V views with segmentation.
         object_poses: (V, 7) world pose of the object in each view.
         label: the object's segmentation label.
-        config: extraction parameters.
+        extractor: the patch extractor (default: ``PatchExtractor()``).
         voxel: if given, keep one patch per voxel of this side (metres) after merging.
         device: device of the returned tensors.
 
@@ -69,7 +68,7 @@ def object_patch_set(
     parts: list[Patches] = []
     for view, pose in zip(views, object_poses, strict=True):
         try:
-            patches = view_patches(view, label, config, device)
+            patches = view_patches(view, label, extractor, device)
         except ValueError:
             continue  # object hidden in this view
         parts.append(patches.to_frame(pose))

@@ -1,0 +1,174 @@
+"""The robosuite table, its fixed cameras and RGB-D rendering, shared by the tabletop scenes
+(``vistask.envs.tabletop``) and the grasp-trial environment (``vistask.envs.grasp_trial``).
+
+Conventions: images and cameras follow ``vistask.vision`` (OpenCV: row 0 at the top, camera x
+right, y down, z forward); quaternions are XYZW (roma) except at the MuJoCo boundary, where
+``wxyz_to_xyzw`` / ``xyzw_to_wxyz`` convert NumPy arrays. Segmentation labels: label i for the
+geoms of the i-th labelled body (its whole subtree), -1 for everything else.
+
+Rendering uses MUJOCO_GL (set to "egl" here when unset).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+
+import mujoco
+import numpy as np
+import roma
+import torch
+from robosuite.models.arenas import TableArena
+
+from vistask.vision import Camera, RGBDView, depth_buffer_to_metres, intrinsics_from_fovy, look_at
+
+TABLE_TOP_Z = 0.8
+TABLE_SIZE = (0.8, 0.8, 0.05)
+TABLE_CENTRE = (0.0, 0.0, TABLE_TOP_Z)
+# MuJoCo cameras look along their -z with y up; OpenCV cameras along +z with y down.
+MJ_TO_CV = np.diag([1.0, -1.0, -1.0])
+
+
+def wxyz_to_xyzw(q: np.ndarray) -> np.ndarray:
+    """(..., 4) MuJoCo WXYZ quaternions -> XYZW."""
+    return np.asarray(q)[..., [1, 2, 3, 0]]
+
+
+def xyzw_to_wxyz(q: np.ndarray) -> np.ndarray:
+    """(..., 4) XYZW quaternions -> MuJoCo WXYZ."""
+    return np.asarray(q)[..., [3, 0, 1, 2]]
+
+
+@dataclass(frozen=True)
+class CameraSpec:
+    """A fixed camera at ``eye`` looking at ``target``.
+
+    Attributes:
+        name: MuJoCo camera name.
+        eye: (3,) position in the world.
+        target: (3,) point on the optical axis.
+        fovy: vertical field of view in degrees.
+        up: world direction that appears up in the image.
+    """
+
+    name: str
+    eye: tuple[float, float, float]
+    target: tuple[float, float, float] = (0.0, 0.0, TABLE_TOP_Z + 0.05)
+    fovy: float = 45.0
+    up: tuple[float, float, float] = (0.0, 0.0, 1.0)
+
+
+def _ring(
+    name: str, azimuth_deg: float, distance: float = 0.6, elevation_deg: float = 45.0
+) -> CameraSpec:
+    a, e = math.radians(azimuth_deg), math.radians(elevation_deg)
+    target = (0.0, 0.0, TABLE_TOP_Z + 0.05)
+    eye = (
+        distance * math.cos(e) * math.cos(a),
+        distance * math.cos(e) * math.sin(a),
+        target[2] + distance * math.sin(e),
+    )
+    return CameraSpec(name, eye, target)
+
+
+# Close-up cameras around the table centre (robosuite's own "frontview", "birdview",
+# "agentview" and "sideview" are also available, but see the table from farther away).
+CAMERAS: dict[str, CameraSpec] = {
+    spec.name: spec
+    for spec in (
+        _ring("front", 0.0),
+        _ring("left", 90.0),
+        _ring("back", 180.0),
+        _ring("right", 270.0),
+        CameraSpec("top", (0.0, 0.0, TABLE_TOP_Z + 0.65), up=(1.0, 0.0, 0.0)),
+    )
+}
+ROBOSUITE_CAMERAS = ("frontview", "birdview", "agentview", "sideview")
+
+
+def table_arena() -> TableArena:
+    """robosuite's table arena with the table top at ``TABLE_TOP_Z`` over the world origin."""
+    return TableArena(table_full_size=TABLE_SIZE, table_offset=TABLE_CENTRE)
+
+
+def add_cameras(arena: TableArena, specs: Iterable[CameraSpec]) -> None:
+    """Add fixed cameras to a robosuite arena (before its model is compiled)."""
+    for spec in specs:
+        cv = look_at(torch.tensor(spec.eye), torch.tensor(spec.target), torch.tensor(spec.up))
+        R_mj = cv[:3, :3].numpy() @ MJ_TO_CV
+        quat = xyzw_to_wxyz(roma.rotmat_to_unitquat(torch.from_numpy(R_mj)).numpy())
+        arena.set_camera(spec.name, spec.eye, quat, camera_attribs={"fovy": str(spec.fovy)})
+
+
+def sim_camera(
+    model: mujoco.MjModel, data: mujoco.MjData, name: str, height: int, width: int
+) -> Camera:
+    """The MuJoCo camera ``name`` as a ``vistask.vision.Camera`` for ``height`` x ``width``
+    images (OpenCV axes, at its current pose).
+
+    Raises:
+        ValueError: no camera of that name.
+    """
+    cam_id = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_CAMERA, name)
+    if cam_id < 0:
+        names = [model.camera(i).name for i in range(model.ncam)]
+        raise ValueError(f"unknown camera {name!r}; known: {names}")
+    T = np.eye(4)
+    T[:3, :3] = data.cam_xmat[cam_id].reshape(3, 3) @ MJ_TO_CV
+    T[:3, 3] = data.cam_xpos[cam_id]
+    K = intrinsics_from_fovy(float(model.cam_fovy[cam_id]), height, width)
+    return Camera(K, torch.from_numpy(T), height, width, name)
+
+
+def render_view(
+    sim, name: str, height: int, width: int, labelled_bodies: Sequence[int]
+) -> RGBDView:
+    """Render camera ``name`` of a robosuite ``MjSim``: RGB, depth in metres, segmentation.
+
+    Args:
+        sim: the simulation (its ``render`` draws offscreen).
+        name: camera name.
+        height, width: image size in pixels.
+        labelled_bodies: body ids; the geoms under ``labelled_bodies[i]`` get label i.
+    """
+    m, d = sim.model._model, sim.data._data
+    camera = sim_camera(m, d, name, height, width)
+    rgb, buffer = sim.render(width=width, height=height, camera_name=name, depth=True)
+    seg = sim.render(width=width, height=height, camera_name=name, segmentation=True)
+    label_of_body = np.full(m.nbody, -1, dtype=np.int64)
+    for label, body in enumerate(labelled_bodies):
+        label_of_body[body] = label
+    geom_label = np.r_[label_of_body[m.body_rootid[m.geom_bodyid]], -1]  # last: "no geom"
+    is_geom = seg[..., 0] == int(mujoco.mjtObj.mjOBJ_GEOM)
+    labels = geom_label[np.where(is_geom, seg[..., 1], -1)]
+    extent = m.stat.extent
+    depth = depth_buffer_to_metres(
+        torch.from_numpy(buffer[::-1].copy()), m.vis.map.znear * extent, m.vis.map.zfar * extent
+    )
+    return RGBDView(
+        rgb=torch.from_numpy(rgb[::-1].copy()),
+        depth=depth.float(),
+        camera=camera,
+        segmentation=torch.from_numpy(labels[::-1].copy()),
+    )
+
+
+def body_bounds(
+    model: mujoco.MjModel, data: mujoco.MjData, body: int, geoms: Iterable[int]
+) -> np.ndarray:
+    """(2, 3) axis-aligned box (min corner, max corner) of ``geoms`` in the frame of ``body``,
+    from MuJoCo's geom AABBs at the current state."""
+    mujoco.mj_forward(model, data)
+    R_b, t_b = data.xmat[body].reshape(3, 3), data.xpos[body]
+    corners = np.array(np.meshgrid([-1, 1], [-1, 1], [-1, 1], indexing="ij")).reshape(3, -1).T
+    points = []
+    for g in geoms:
+        local = model.geom_aabb[g, :3] + corners * model.geom_aabb[g, 3:]  # geom frame
+        world = local @ data.geom_xmat[g].reshape(3, 3).T + data.geom_xpos[g]
+        points.append((world - t_b) @ R_b)
+    pts = np.concatenate(points)
+    return np.stack([pts.min(0), pts.max(0)])
