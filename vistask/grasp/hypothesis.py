@@ -121,34 +121,20 @@ def feature_hypothesis_density(
     sigma_r: float = 0.25,
     max_grasps: int = 1000,
     generator: torch.Generator | None = None,
-    max_colour_distance: float = 0.15,
-    max_angle: float = math.radians(20.0),
-    width_range: tuple[float, float] = (0.015, 0.075),
-    depth: float = 0.015,
-    max_patches: int = 600,
 ) -> SE3KDE:
-    """Feature-induced hypothesis density: ``feature_grasps`` as equally weighted particles.
+    """Feature-induced hypothesis density: ``feature_grasps`` (with its default pair tests) as
+    equally weighted particles.
 
     Args:
         patches: object-frame patches.
         sigma_t, sigma_r: kernel bandwidth (metres, radians).
         max_grasps: grasps kept at random (the pair count grows quadratically).
         generator: random generator.
-        max_colour_distance, max_angle, width_range, depth, max_patches: the pair tests and
-            the grasp placement of ``feature_grasps`` (see there).
 
     Raises:
         ValueError: no patch pair passed the tests.
     """
-    grasps = feature_grasps(
-        patches,
-        max_colour_distance=max_colour_distance,
-        max_angle=max_angle,
-        width_range=width_range,
-        depth=depth,
-        max_patches=max_patches,
-        generator=generator,
-    )
+    grasps = feature_grasps(patches, generator=generator)
     if len(grasps) == 0:
         raise ValueError("no pair of similar-coloured coplanar patches fits the gripper")
     if len(grasps) > max_grasps:
