@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 import time
 from pathlib import Path
 from typing import Any
@@ -30,7 +31,9 @@ def _plain(value: Any) -> Any:
     if isinstance(value, list | tuple):
         return [_plain(v) for v in value]
     if isinstance(value, np.generic):
-        return value.item()
+        return _plain(value.item())
+    if isinstance(value, float) and not math.isfinite(value):
+        return None  # JSON has no inf or nan
     if isinstance(value, np.ndarray):
         return value.tolist()
     return value
@@ -41,7 +44,7 @@ def write_summary(path: str | Path, summary: dict) -> Path:
     path = Path(path)
     if path.is_dir():
         path = path / "summary.json"
-    path.write_text(json.dumps(_plain(summary), indent=2) + "\n")
+    path.write_text(json.dumps(_plain(summary), indent=2, allow_nan=False) + "\n")
     return path
 
 
