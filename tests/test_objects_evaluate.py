@@ -59,3 +59,5 @@ def test_bad_bench_configs_are_clear_errors() -> None:
         PoseBenchmark(conditions=("foggy",))
     with pytest.raises(ValueError, match="methods"):
         PoseBenchmark(methods=("icp",))
+    with pytest.raises(ValueError, match="n_scenes must be >= 1, got 0"):
+        PoseBenchmark(n_scenes=0)

@@ -76,6 +76,10 @@ def test_too_few_patches_and_missing_normals_are_clear_errors() -> None:
         ObjectModel.learn(obj.select(torch.arange(3)), "tiny")
     with pytest.raises(ValueError, match="normals"):
         ObjectModel.learn(Patches(obj.positions, obj.directions, obj.colors), "flat")
+    with pytest.raises(ValueError, match="n_classes must be >= 1, got 0"):
+        ObjectModel.learn(obj, "chair", n_classes=0)
+    with pytest.raises(ValueError, match="meta_sigma_t must be positive"):
+        ObjectModel.learn(obj, "chair", meta_sigma_t=0.0)
 
 
 def test_save_load_round_trip_keeps_the_grasp_density(model: ObjectModel, tmp_path) -> None:

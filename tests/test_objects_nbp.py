@@ -90,3 +90,12 @@ def test_empty_or_foreign_scenes_are_clear_errors(model: ObjectModel) -> None:
         FAST.infer(model, grey)
     with pytest.raises(ValueError, match="normals"):
         FAST.infer(model, Patches(obj.positions, obj.directions, obj.colors))
+
+
+def test_bad_arguments_are_named_in_the_error() -> None:
+    with pytest.raises(ValueError, match="n_particles must be >= 1, got 0"):
+        NBP(n_particles=0)
+    with pytest.raises(ValueError, match=r"evidence_sigma_r must be positive, got -0\.1"):
+        NBP(evidence_sigma_r=-0.1)
+    with pytest.raises(ValueError, match="cutoff"):
+        NBP(cutoff=0.0)

@@ -45,3 +45,7 @@ def test_empty_point_clouds_are_clear_errors() -> None:
         register(torch.zeros(0, 3), points)
     with pytest.raises(ValueError, match=r"\(N, 3\)"):
         register(points[:, :2], points)
+    with pytest.raises(ValueError, match=r"confidence must be in \(0, 1\), got 1.0"):
+        Open3DRegistration(confidence=1.0)
+    with pytest.raises(ValueError, match="voxel must be positive"):
+        Open3DRegistration(voxel=0.0)

@@ -124,6 +124,10 @@ def test_clear_errors() -> None:
         extract(rgb[:10], torch.ones(H, W), camera)
     with pytest.raises(ValueError, match="spacing"):
         PatchExtractor(spacing=0)
+    with pytest.raises(ValueError, match="tangent_radius must be >= 1"):
+        PatchExtractor(tangent_radius=0)
+    with pytest.raises(ValueError, match="max_depth must be positive, got -1"):
+        PatchExtractor(max_depth=-1)
 
 
 @pytest.fixture

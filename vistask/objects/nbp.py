@@ -192,7 +192,8 @@ class NBP:
     """Pose estimation by nonparametric belief propagation over an object model's tree.
 
     ``NBP(n_particles=800).infer(model, patches)`` detects the object and returns its pose
-    hypotheses (see the module docstring for the passes).
+    hypotheses (see the module docstring for the passes). The arguments are kept as
+    attributes of the same names.
 
     Args:
         n_particles: particles per message and belief.

@@ -50,7 +50,8 @@ class Open3DRegistration:
     ``Open3DRegistration().estimate_pose(model, patches)`` registers the model's patch
     positions to the scene's. Lengths are in metres. The defaults did best in a small sweep on
     tabletop scenes (seeds disjoint from the benchmark's) over voxel, FPFH radius, mutual
-    filter, ICP distance and RANSAC budget.
+    filter, ICP distance and RANSAC budget. The arguments are kept as attributes of the same
+    names.
 
     Args:
         voxel: down-sampling voxel; FPFH radius and match distances scale with it.

@@ -270,7 +270,7 @@ class PatchExtractor:
     """Extracts 3-D oriented appearance patches from one RGB-D image.
 
     Call it on an image: ``PatchExtractor()(rgb, depth, camera)``. Pixel sizes assume images
-    of a few hundred pixels.
+    of a few hundred pixels. The arguments are kept as attributes of the same names.
 
     Args:
         spacing: at most one patch per ``spacing`` x ``spacing`` pixel cell.
