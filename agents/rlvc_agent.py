@@ -9,11 +9,8 @@ from typing import Any
 
 import gymnasium as gym
 import numpy as np
-from stable_baselines3.common.callbacks import BaseCallback, CallbackList, ConvertCallback
-from stable_baselines3.common.logger import Logger
-from stable_baselines3.common.utils import configure_logger
-from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv
 
+from vistask.agents.sb3_model import SB3Model
 from vistask.features import SiftExtractor, VisualFeatureExtractor
 from vistask.rlvc import (
     RLVC,
@@ -29,7 +26,7 @@ MAX_BLOCKED = 2  # an epsilon-greedy episode ends after this many blocked moves 
 VOCABULARY_SAMPLE = 20_000  # descriptors that k-means fits the vocabulary on
 
 
-class RLVCAgent:
+class RLVCAgent(SB3Model):
     """Learns visual classes of an image env by RLVC and acts greedily on them.
 
     ``learn(total_timesteps)`` collects ``databases`` equal databases of interactions, one
@@ -126,8 +123,6 @@ class RLVCAgent:
         self.timing = {"collect": 0.0, "extract": 0.0, "vocabulary": 0.0}
         self._next_seed = self.seed  # env copy i of the next database resets with this + i
         self._rng = np.random.default_rng(self.seed)  # predict(deterministic=False)
-        self._logger: Logger | None = None
-        self._vec_env: VecEnv | None = None
 
     # -- env --------------------------------------------------------------------------------
     def set_env(self, env: gym.Env) -> None:
@@ -154,21 +149,6 @@ class RLVCAgent:
                 f"{space.dtype} and {env.action_space}"
             )
 
-    def get_env(self) -> VecEnv | None:
-        """The env as a one-copy SB3 ``VecEnv`` (what SB3 callbacks read)."""
-        if self._vec_env is None and self.env is not None:
-            self._vec_env = DummyVecEnv([lambda: self.env])
-        return self._vec_env
-
-    def get_vec_normalize_env(self) -> None:
-        return None  # RLVC reads raw images
-
-    @property
-    def logger(self) -> Logger:
-        if self._logger is None:
-            self._logger = configure_logger(0, None)
-        return self._logger
-
     # -- learning ---------------------------------------------------------------------------
     def learn(
         self,
@@ -189,18 +169,12 @@ class RLVCAgent:
                 (False: go on counting, in the same run).
             progress_bar: show progress bars of the stages.
         """
-        if self.env is None:
-            raise ValueError("this agent has no env: pass one to RLVCAgent.load(path, env=env)")
         if not isinstance(total_timesteps, int | np.integer) or total_timesteps < self.databases:
             raise ValueError(
                 f"total_timesteps must be an integer >= databases ({self.databases}), "
                 f"got {total_timesteps!r}"
             )
-        if reset_num_timesteps:
-            self.num_timesteps = 0
-        self._logger = configure_logger(0, self.tensorboard_log, tb_log_name, reset_num_timesteps)
-        callback = self._init_callback(callback)
-        callback.on_training_start(locals(), globals())
+        callback = self._start_learning(callback, tb_log_name, reset_num_timesteps)
         sizes = [total_timesteps // self.databases] * self.databases
         sizes[0] += total_timesteps - sum(sizes)
         stages_left = self.max_stages
@@ -221,20 +195,8 @@ class RLVCAgent:
             stages_left -= len(self.rlvc.history) - stages_before
             if stopped or stages_left <= 0:
                 break
-        callback.on_training_end()
-        self.logger.close()
-        self._logger = None
+        self._end_learning(callback)
         return self
-
-    def _init_callback(self, callback: Any) -> BaseCallback:
-        def convert(c: Any) -> BaseCallback:  # a function(locals, globals) -> bool, as in SB3
-            return c if isinstance(c, BaseCallback) else ConvertCallback(c)
-
-        if callback is None or isinstance(callback, list):
-            callback = CallbackList([convert(c) for c in callback or []])
-        callback = convert(callback)
-        callback.init_callback(self)
-        return callback
 
     def _add_database(self, size: int) -> None:
         """Collect ``size`` interactions and add them to the database (the first database

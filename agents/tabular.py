@@ -3,16 +3,18 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
 import torch
 from tqdm.auto import tqdm
 
+from vistask.agents.sb3_model import SB3Model
 from vistask.saving import load_state, save_state
 
 
-class TabularQAgent:
+class TabularQAgent(SB3Model):
     """Epsilon-greedy tabular Q-learning with an SB3-like API.
 
     Example:
@@ -27,7 +29,9 @@ class TabularQAgent:
         gamma: discount (default: ``env.unwrapped.gamma`` if the env exposes one, else 0.99).
         epsilon: exploration rate of the behaviour policy.
         initial_q: initial Q values (optimism drives exploration when rewards are positive).
+        tensorboard_log: folder of TensorBoard runs (None: no logging).
         seed: seeds the behaviour policy and the first reset.
+        n_states, n_actions: table size without an env (for ``load``).
     """
 
     def __init__(
@@ -37,6 +41,7 @@ class TabularQAgent:
         gamma: float | None = None,
         epsilon: float = 0.2,
         initial_q: float = 0.0,
+        tensorboard_log: str | Path | None = None,
         seed: int = 0,
         n_states: int | None = None,
         n_actions: int | None = None,
@@ -55,19 +60,28 @@ class TabularQAgent:
             raise ValueError("pass an env, or n_states and n_actions")
         if not 0 < learning_rate <= 1 or not 0 <= epsilon <= 1:
             raise ValueError("learning_rate must be in (0, 1] and epsilon in [0, 1]")
-        self.env = env
+        self.env, self.tensorboard_log = env, tensorboard_log
         self.learning_rate, self.epsilon, self.seed = learning_rate, epsilon, seed
         self.gamma = 0.99 if gamma is None else float(gamma)
         self.q = np.full((n_states, n_actions), float(initial_q))
         self.num_timesteps = 0
         self.rng = np.random.default_rng(seed)
 
-    def learn(self, total_timesteps: int, progress_bar: bool = False) -> TabularQAgent:
-        """Run Q-learning for ``total_timesteps`` environment steps."""
-        if self.env is None:
-            raise ValueError("this agent has no env: pass one to load(path, env)")
+    def learn(
+        self,
+        total_timesteps: int,
+        callback: Any = None,
+        tb_log_name: str = "TabularQ",
+        reset_num_timesteps: bool = True,
+        progress_bar: bool = False,
+    ) -> TabularQAgent:
+        """Run Q-learning for ``total_timesteps`` environment steps; SB3 callbacks are called
+        after every step (returning False stops); ``rollout/ep_rew`` is logged per episode.
+        """
+        callback = self._start_learning(callback, tb_log_name, reset_num_timesteps)
         env, q = self.env, self.q
         obs, _ = env.reset(seed=self.seed if self.num_timesteps == 0 else None)
+        episode_reward = 0.0
         for _ in tqdm(range(total_timesteps), disable=not progress_bar, desc="Q-learning"):
             if self.rng.random() < self.epsilon:
                 action = int(self.rng.integers(q.shape[1]))
@@ -77,9 +91,15 @@ class TabularQAgent:
             target = reward + (0.0 if terminated else self.gamma * q[next_obs].max())
             q[obs, action] += self.learning_rate * (target - q[obs, action])
             self.num_timesteps += 1
-            obs = next_obs
+            obs, episode_reward = next_obs, episode_reward + float(reward)
             if terminated or truncated:
+                self.logger.record("rollout/ep_rew", episode_reward)
+                self.logger.dump(step=self.num_timesteps)
                 obs, _ = env.reset()
+                episode_reward = 0.0
+            if not callback.on_step():
+                break
+        self._end_learning(callback)
         return self
 
     def _greedy(self, state: int) -> int:

@@ -1,8 +1,8 @@
 """Gymnasium environments of vistask (installed as ``vistask.envs``).
 
 Importing this package registers ``vistask/VisualMaze-v0`` and ``vistask/GraspTrial-v0``.
-Robosuite-based modules (``tabletop``, ``grasp_trial``) are imported only when used: importing
-robosuite takes seconds.
+Robosuite-based modules (``scene``, ``tabletop``, ``grasp_trial``) are imported only when
+used: importing robosuite takes seconds.
 """
 
 from gymnasium.envs.registration import register, registry

@@ -12,7 +12,7 @@ import json
 
 import torch
 
-from vistask.experiments.compare import DEFAULT_BUDGETS, METHODS, CompareConfig, compare
+from vistask.experiments.compare import DEFAULT_BUDGETS, METHODS, Comparison, compare
 
 
 def main() -> None:
@@ -51,7 +51,7 @@ def main() -> None:
             overrides[key] = value
     if args.threads:
         torch.set_num_threads(args.threads)
-    config = CompareConfig.quick(**overrides) if args.quick else CompareConfig(**overrides)
+    config = Comparison.quick(**overrides) if args.quick else Comparison(**overrides)
     compare(config, args.out)
 
 

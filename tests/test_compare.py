@@ -12,7 +12,7 @@ import torch
 
 from vistask.experiments.compare import (
     METHODS,
-    CompareConfig,
+    Comparison,
     GridCells,
     RunResult,
     aggregate,
@@ -32,7 +32,7 @@ def quick_run(tmp_path_factory):
     threads = torch.get_num_threads()
     torch.set_num_threads(1)
     try:
-        return out, compare(CompareConfig.quick(), out, progress=False)
+        return out, compare(Comparison.quick(), out, progress=False)
     finally:
         torch.set_num_threads(threads)
 
@@ -109,9 +109,9 @@ def test_aggregation_iqm_ci_and_thresholds():
 
 def test_config_rejects_bad_input():
     with pytest.raises(ValueError, match="methods"):
-        CompareConfig(methods=("a3c",))
+        Comparison(methods=("a3c",))
     with pytest.raises(ValueError, match="budgets"):
-        CompareConfig(budgets=(2000, 1000))
+        Comparison(budgets=(2000, 1000))
 
 
 def test_speedup_ratio_and_its_interval():

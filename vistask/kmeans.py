@@ -1,5 +1,5 @@
-"""Nearest centroids and Lloyd's k-means in torch, shared by the visual vocabulary and the
-object models' appearance classes."""
+"""Nearest centroids and Lloyd's k-means in torch, for visual vocabularies: thousands of
+centroids over tens of thousands of descriptors, where scipy's k-means is too slow."""
 
 from __future__ import annotations
 
@@ -35,7 +35,12 @@ def nearest_centroids(
 
 
 def kmeans(x: torch.Tensor, k: int, iters: int = 20, seed: int = 0) -> torch.Tensor:
-    """Lloyd's k-means. x (M, D) float -> centroids (k, D). Deterministic for a seed.
+    """Lloyd's k-means from k random points. x (M, D) float -> centroids (k, D).
+    Deterministic for a seed.
+
+    Random seeds follow the density of the points, which suits a vocabulary: fitted from
+    k-means++ seeds, the maze's vocabulary scored 0.904 of the oracle against 0.927 (seeds
+    0-4). The object models' few colour classes need k-means++ and use scipy's ``kmeans2``.
 
     Empty clusters are re-seeded with the points farthest from their centroids, so that every
     prototype ends up describing some descriptors.

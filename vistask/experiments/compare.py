@@ -16,7 +16,7 @@ import csv
 import json
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import gymnasium as gym
@@ -70,9 +70,11 @@ class GridCells(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
 
 
 # -- configuration ------------------------------------------------------------------------
-@dataclass
-class CompareConfig:
-    """Everything that defines a comparison run.
+class Comparison:
+    """What a comparison runs: methods, budgets, seeds, the env and the baselines' settings.
+
+    Example:
+        >>> summary = compare(Comparison(methods=("rlvc", "tabular"), seeds=3), out="runs/c")
 
     Args:
         env_id, env_kwargs: the environment (``gym.make`` arguments); a visual maze, because
@@ -87,34 +89,40 @@ class CompareConfig:
         device: torch device of the SB3 networks.
     """
 
-    env_id: str = "vistask/VisualMaze-v0"
-    env_kwargs: dict = field(default_factory=dict)
-    methods: tuple[str, ...] = METHODS
-    budgets: tuple[int, ...] = DEFAULT_BUDGETS
-    seeds: int = 5
-    seed0: int = 0
-    eval_starts: int = 100
-    grid: int = 10
-    dqn_kwargs: dict = field(default_factory=dict)
-    ppo_kwargs: dict = field(default_factory=dict)
-    device: str = "cpu"
+    def __init__(
+        self,
+        env_id: str = "vistask/VisualMaze-v0",
+        env_kwargs: dict | None = None,
+        methods: Sequence[str] = METHODS,
+        budgets: Sequence[int] = DEFAULT_BUDGETS,
+        seeds: int = 5,
+        seed0: int = 0,
+        eval_starts: int = 100,
+        grid: int = 10,
+        dqn_kwargs: dict | None = None,
+        ppo_kwargs: dict | None = None,
+        device: str = "cpu",
+    ) -> None:
+        methods, budgets = tuple(methods), tuple(int(b) for b in budgets)
+        unknown = set(methods) - set(METHODS)
+        if unknown or not methods:
+            raise ValueError(f"methods must be a non-empty subset of {METHODS}, got {methods}")
+        if not budgets or min(budgets) < 1 or list(budgets) != sorted(set(budgets)):
+            raise ValueError(f"budgets must be strictly increasing positive ints, got {budgets}")
+        for name, value in (("seeds", seeds), ("eval_starts", eval_starts), ("grid", grid)):
+            if value < 1:
+                raise ValueError(f"{name} must be >= 1, got {value}")
+        self.env_id, self.env_kwargs = env_id, dict(env_kwargs or {})
+        self.methods, self.budgets, self.seeds, self.seed0 = methods, budgets, seeds, seed0
+        self.eval_starts, self.grid, self.device = eval_starts, grid, device
+        self.dqn_kwargs, self.ppo_kwargs = dict(dqn_kwargs or {}), dict(ppo_kwargs or {})
 
-    def __post_init__(self) -> None:
-        self.methods, self.budgets = tuple(self.methods), tuple(int(b) for b in self.budgets)
-        unknown = set(self.methods) - set(METHODS)
-        if unknown or not self.methods:
-            raise ValueError(f"methods must be a non-empty subset of {METHODS}, got {unknown}")
-        if (
-            not self.budgets
-            or min(self.budgets) < 1
-            or list(self.budgets) != sorted(set(self.budgets))
-        ):
-            raise ValueError(f"budgets must be strictly increasing positive ints: {self.budgets}")
-        if self.seeds < 1 or self.eval_starts < 1:
-            raise ValueError("seeds and eval_starts must be >= 1")
+    def params(self) -> dict:
+        """The constructor's arguments (written to ``summary.json``)."""
+        return dict(vars(self))
 
     @classmethod
-    def quick(cls, **overrides) -> CompareConfig:
+    def quick(cls, **overrides) -> Comparison:
         """Tiny budgets for tests: two seeds, small SB3 buffers and rollouts, 256 words."""
         small = {
             "budgets": QUICK_BUDGETS,
@@ -173,7 +181,7 @@ def _tabular_policy(agent: TabularQAgent, size: float, grid: int) -> Policy:
 
 
 def run_rlvc(
-    config: CompareConfig, seed: int, evaluate: Evaluate, log: Log
+    config: Comparison, seed: int, evaluate: Evaluate, log: Log
 ) -> tuple[list[float], float]:
     """A fresh RLVCAgent per budget (RLVC learns from a fixed database of B interactions).
 
@@ -193,7 +201,7 @@ def run_rlvc(
 
 
 def run_tabular(
-    config: CompareConfig, seed: int, evaluate: Evaluate, log: Log
+    config: Comparison, seed: int, evaluate: Evaluate, log: Log
 ) -> tuple[list[float], float]:
     """Q-learning on true-position grid cells, trained once and evaluated at every budget."""
     env = GridCells(gym.make(config.env_id, **config.env_kwargs), config.grid)
@@ -210,7 +218,7 @@ def run_tabular(
 
 
 def run_random(
-    config: CompareConfig, seed: int, evaluate: Evaluate, log: Log
+    config: Comparison, seed: int, evaluate: Evaluate, log: Log
 ) -> tuple[list[float], float]:
     """Uniformly random actions: no learning, the same score at every budget up to noise."""
     returns, n_actions = [], len(ACTION_NAMES)
@@ -221,7 +229,7 @@ def run_random(
 
 
 def run_sb3(
-    config: CompareConfig, method: str, seed: int, evaluate: Evaluate, log: Log, tb_dir: Path
+    config: Comparison, method: str, seed: int, evaluate: Evaluate, log: Log, tb_dir: Path
 ) -> tuple[list[float], float]:
     """SB3 DQN or PPO with ``CnnPolicy`` on the raw percepts, one ``learn`` call whose
     callback evaluates the current policy when it passes each budget."""
@@ -259,7 +267,7 @@ def run_sb3(
 
 
 def run_method(
-    config: CompareConfig, method: str, seed: int, starts: np.ndarray, tb_root: Path
+    config: Comparison, method: str, seed: int, starts: np.ndarray, tb_root: Path
 ) -> RunResult:
     """Train and evaluate ``method`` with ``seed``; logs ``eval/return`` against
     interactions to ``tb_root/<method>-seed<seed>``."""
@@ -462,7 +470,7 @@ def plot_curves(path: Path, methods: dict[str, dict], budgets: Sequence[int], or
 
 # -- the whole comparison -----------------------------------------------------------------
 def compare(
-    config: CompareConfig | None = None, out: str | Path | None = None, progress: bool = True
+    config: Comparison | None = None, out: str | Path | None = None, progress: bool = True
 ) -> dict:
     """Run every method with every seed, aggregate and write all outputs.
 
@@ -472,14 +480,14 @@ def compare(
     ``seed<k>/<dqn|ppo>-sb3_1`` with SB3's own training logs).
 
     Args:
-        config: the comparison (default ``CompareConfig()``, the full run).
+        config: the comparison (default ``Comparison()``, the full run).
         out: run directory.
         progress: print one line per finished run.
 
     Returns:
         The summary written to ``summary.json``.
     """
-    config = config or CompareConfig()
+    config = config or Comparison()
     start = time.perf_counter()
     out = run_dir("compare", out)
     maze = gym.make(config.env_id, **config.env_kwargs).unwrapped
@@ -509,7 +517,7 @@ def compare(
 
     summary = {
         "env_id": config.env_id,
-        "config": asdict(config),
+        "config": config.params(),
         "oracle_return": oracle_return,
         "budgets": list(config.budgets),
         "methods": methods,
