@@ -11,6 +11,7 @@ import gymnasium as gym
 import numpy as np
 
 from vistask.agents.sb3_model import SB3Model
+from vistask.checks import check_at_least, check_integers
 from vistask.features import SiftExtractor, VisualFeatureExtractor
 from vistask.rlvc import (
     RLVC,
@@ -87,16 +88,18 @@ class RLVCAgent(SB3Model):
         tensorboard_log: str | Path | None = None,
         seed: int = 0,
     ) -> None:
-        for name, value, low in (
-            ("n_words", n_words, 2),
-            ("databases", databases, 1),
-            ("min_count", min_count, 2),
-            ("max_stages", max_stages, 1),
-            ("n_envs", n_envs, 1),
-            ("max_keypoints", max_keypoints, 0),
-        ):
-            if not isinstance(value, int | np.integer) or value < low:
-                raise ValueError(f"{name} must be an integer >= {low}, got {value!r}")
+        counts = {
+            "n_words": n_words,
+            "databases": databases,
+            "min_count": min_count,
+            "max_stages": max_stages,
+            "n_envs": n_envs,
+            "max_keypoints": max_keypoints,
+        }
+        check_integers(**counts)
+        check_at_least(2, n_words=n_words, min_count=min_count)
+        check_at_least(1, databases=databases, max_stages=max_stages, n_envs=n_envs)
+        check_at_least(0, max_keypoints=max_keypoints)
         if not 0 < alpha < 1:
             raise ValueError(f"alpha must be in (0, 1), got {alpha!r}")
         if not 0 <= epsilon <= 1:

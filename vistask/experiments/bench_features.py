@@ -9,6 +9,7 @@ import gymnasium as gym
 import numpy as np
 import torch
 
+import vistask.envs  # noqa: F401  (registers the maze)
 from vistask.features import SiftExtractor, VisualFeatureExtractor
 from vistask.runs import print_table, run_dir, write_summary
 

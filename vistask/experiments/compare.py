@@ -25,6 +25,7 @@ from gymnasium import spaces
 from scipy import stats
 
 from vistask.agents import RLVCAgent, TabularQAgent
+from vistask.checks import check_at_least
 from vistask.envs import (
     ACTION_NAMES,
     MazeOracle,
@@ -109,9 +110,7 @@ class Comparison:
             raise ValueError(f"methods must be a non-empty subset of {METHODS}, got {methods}")
         if not budgets or min(budgets) < 1 or list(budgets) != sorted(set(budgets)):
             raise ValueError(f"budgets must be strictly increasing positive ints, got {budgets}")
-        for name, value in (("seeds", seeds), ("eval_starts", eval_starts), ("grid", grid)):
-            if value < 1:
-                raise ValueError(f"{name} must be >= 1, got {value}")
+        check_at_least(1, seeds=seeds, eval_starts=eval_starts, grid=grid)
         self.env_id, self.env_kwargs = env_id, dict(env_kwargs or {})
         self.methods, self.budgets, self.seeds, self.seed0 = methods, budgets, seeds, seed0
         self.eval_starts, self.grid, self.device = eval_starts, grid, device

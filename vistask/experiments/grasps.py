@@ -21,6 +21,7 @@ from typing import Any
 
 import torch
 
+from vistask.checks import check_at_least, check_positive
 from vistask.grasp.hypothesis import (
     demonstration_density,
     feature_hypothesis_density,
@@ -117,25 +118,21 @@ class GraspExperiment:
             raise ValueError(f"objects must name at least one object kind, got {objects!r}")
         if hypothesis not in HYPOTHESES:
             raise ValueError(f"hypothesis must be one of {HYPOTHESES}, got {hypothesis!r}")
-        for name, value in (
-            ("cycles", cycles),
-            ("trials_per_cycle", trials_per_cycle),
-            ("eval_trials", eval_trials),
-            ("num_envs", num_envs),
-            ("candidates", candidates),
-        ):
-            if value < 1:
-                raise ValueError(f"{name} must be >= 1, got {value}")
-        for name, value in (
-            ("sigma_t", sigma_t),
-            ("sigma_r", sigma_r),
-            ("empirical_sigma_t", empirical_sigma_t),
-            ("empirical_sigma_r", empirical_sigma_r),
-        ):
-            if not value > 0:
-                raise ValueError(f"{name} must be positive, got {value}")
-        if c_rel < 0:
-            raise ValueError(f"c_rel must be non-negative, got {c_rel}")
+        check_at_least(
+            1,
+            cycles=cycles,
+            trials_per_cycle=trials_per_cycle,
+            eval_trials=eval_trials,
+            num_envs=num_envs,
+            candidates=candidates,
+        )
+        check_positive(
+            sigma_t=sigma_t,
+            sigma_r=sigma_r,
+            empirical_sigma_t=empirical_sigma_t,
+            empirical_sigma_r=empirical_sigma_r,
+        )
+        check_at_least(0, c_rel=c_rel)
         self.objects = tuple(objects)
         self.hypothesis = hypothesis
         self.cycles = cycles

@@ -27,6 +27,7 @@ import roma
 import torch
 from torch import Tensor
 
+from vistask.checks import check_at_least, check_positive
 from vistask.objects.model import ObjectModel, appearance_descriptors
 from vistask.se3 import SE3KDE, compose, inverse, kernels
 from vistask.vision import Patches
@@ -234,25 +235,15 @@ class NBP:
         color_sigma: float = 0.1,
         top_down: bool = False,
     ) -> None:
-        for name, value in (
-            ("n_particles", n_particles),
-            ("n_modes", n_modes),
-            ("mode_starts", mode_starts),
-        ):
-            if value < 1:
-                raise ValueError(f"{name} must be >= 1, got {value}")
-        for name, value in (
-            ("sigma_t", sigma_t),
-            ("sigma_r", sigma_r),
-            ("evidence_sigma_t", evidence_sigma_t),
-            ("evidence_sigma_r", evidence_sigma_r),
-            ("color_sigma", color_sigma),
-        ):
-            if not value > 0:
-                raise ValueError(f"{name} must be positive, got {value}")
-        for name, value in (("floor", floor), ("refine_sigma_t", refine_sigma_t)):
-            if value < 0:
-                raise ValueError(f"{name} must be >= 0, got {value}")
+        check_at_least(1, n_particles=n_particles, n_modes=n_modes, mode_starts=mode_starts)
+        check_positive(
+            sigma_t=sigma_t,
+            sigma_r=sigma_r,
+            evidence_sigma_t=evidence_sigma_t,
+            evidence_sigma_r=evidence_sigma_r,
+            color_sigma=color_sigma,
+        )
+        check_at_least(0, floor=floor, refine_sigma_t=refine_sigma_t)
         if cutoff is not None and not cutoff > 0:
             raise ValueError(
                 f"cutoff must be positive (multiples of sigma_t) or None, got {cutoff}"

@@ -13,6 +13,7 @@ import roma
 import torch
 from torch import Tensor
 
+from vistask.checks import check_at_least, check_positive
 from vistask.objects.model import ObjectModel
 from vistask.vision import Patches
 
@@ -77,15 +78,8 @@ class Open3DRegistration:
         icp_distance: float = 2.0,
         mutual_filter: bool = False,
     ) -> None:
-        for name, value in (
-            ("voxel", voxel),
-            ("feature_radius", feature_radius),
-            ("icp_distance", icp_distance),
-        ):
-            if not value > 0:
-                raise ValueError(f"{name} must be positive, got {value}")
-        if ransac_iterations < 1:
-            raise ValueError(f"ransac_iterations must be >= 1, got {ransac_iterations}")
+        check_positive(voxel=voxel, feature_radius=feature_radius, icp_distance=icp_distance)
+        check_at_least(1, ransac_iterations=ransac_iterations)
         if not 0 < confidence < 1:
             raise ValueError(f"confidence must be in (0, 1), got {confidence}")
         self.voxel = voxel

@@ -31,6 +31,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
+from vistask.checks import check_at_least, check_positive
 from vistask.vision.camera import Camera, backproject
 
 _LUMA = np.array([0.299, 0.587, 0.114], dtype=np.float32)
@@ -303,18 +304,10 @@ class PatchExtractor:
         normal_radius: int = 3,
         max_depth: float = 5.0,
     ) -> None:
-        for name, value in (("spacing", spacing), ("tangent_radius", tangent_radius)):
-            if value < 1:
-                raise ValueError(f"{name} must be >= 1 (pixels), got {value}")
+        check_at_least(1, spacing=spacing, tangent_radius=tangent_radius)  # pixels
         if normal_radius < 0:
             raise ValueError(f"normal_radius must be >= 0 (0: no normals), got {normal_radius}")
-        for name, value in (
-            ("color_offset", color_offset),
-            ("depth_jump", depth_jump),
-            ("max_depth", max_depth),
-        ):
-            if not value > 0:
-                raise ValueError(f"{name} must be positive, got {value}")
+        check_positive(color_offset=color_offset, depth_jump=depth_jump, max_depth=max_depth)
         self.spacing = spacing
         self.canny_low = canny_low
         self.canny_high = canny_high
