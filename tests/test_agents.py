@@ -148,7 +148,7 @@ def test_unlearned_agent_explains_itself():
     agent = RLVCAgent(small_maze())
     with pytest.raises(RuntimeError, match="not learned"):
         agent.predict(np.zeros((64, 64, 3), np.uint8))
-    with pytest.raises(TypeError, match="n_words must be an integer, got 100.5"):
+    with pytest.raises(TypeError, match=r"n_words must be an integer, got 100\.5"):
         RLVCAgent(small_maze(), n_words=100.5)
     with pytest.raises(ValueError, match="databases must be >= 1, got 0"):
         RLVCAgent(small_maze(), databases=0)
