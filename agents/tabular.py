@@ -65,6 +65,7 @@ class TabularQAgent(SB3Model):
         self.gamma = 0.99 if gamma is None else float(gamma)
         self.q = np.full((n_states, n_actions), float(initial_q))
         self.num_timesteps = 0
+        self._seeded = False
         self.rng = np.random.default_rng(seed)
 
     def learn(
@@ -78,9 +79,11 @@ class TabularQAgent(SB3Model):
         """Run Q-learning for ``total_timesteps`` environment steps; SB3 callbacks are called
         after every step (returning False stops); ``rollout/ep_rew`` is logged per episode.
         """
+        seeded = self._seeded  # the env is seeded once, at the agent's first step
         callback = self._start_learning(callback, tb_log_name, reset_num_timesteps)
         env, q = self.env, self.q
-        obs, _ = env.reset(seed=self.seed if self.num_timesteps == 0 else None)
+        obs, _ = env.reset(seed=None if seeded else self.seed)
+        self._seeded = True
         episode_reward = 0.0
         for _ in tqdm(range(total_timesteps), disable=not progress_bar, desc="Q-learning"):
             if self.rng.random() < self.epsilon:
@@ -153,4 +156,5 @@ class TabularQAgent(SB3Model):
                 f"{env.observation_space} and {env.action_space}"
             )
         agent.env, agent.q, agent.num_timesteps = env, q, state["num_timesteps"]
+        agent._seeded = agent.num_timesteps > 0
         return agent

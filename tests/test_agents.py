@@ -171,6 +171,8 @@ def test_tabular_q_learning_solves_a_deterministic_gridworld(tmp_path):
     steps = []
     agent.learn(100, callback=lambda _l, _g: steps.append(1) or len(steps) < 10)
     assert len(steps) == 10 == agent.num_timesteps  # once per step; False stops
+    agent.learn(50, reset_num_timesteps=False)
+    assert agent.num_timesteps == 60  # the count goes on, as the comparison's budgets need
     agent.save(tmp_path / "q.pt")
     loaded = TabularQAgent.load(tmp_path / "q.pt", env)
     np.testing.assert_array_equal(loaded.q, agent.q)

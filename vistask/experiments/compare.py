@@ -209,7 +209,7 @@ def run_tabular(
     returns, train = [], 0.0
     for budget in config.budgets:
         t0 = time.perf_counter()
-        agent.learn(budget - agent.num_timesteps)
+        agent.learn(budget - agent.num_timesteps, reset_num_timesteps=False)
         train += time.perf_counter() - t0
         returns.append(evaluate(_tabular_policy(agent, size, config.grid)))
         log(budget, returns[-1])
