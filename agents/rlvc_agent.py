@@ -9,6 +9,7 @@ from typing import Any
 
 import gymnasium as gym
 import numpy as np
+import torch
 
 from vistask.agents.sb3_model import SB3Model
 from vistask.checks import check_at_least, check_integers
@@ -68,6 +69,8 @@ class RLVCAgent(SB3Model):
         n_envs: episodes collected side by side on the classes, so that features are
             extracted for batches of views.
         max_keypoints: SIFT keeps the strongest keypoints of each percept (0: all).
+        compounds: when no feature splits a class any more, make compound features (pairs
+            of features in a stable spatial relation) for the most aliased classes.
         gamma: discount (default: the env's ``gamma`` attribute if it has one, else 0.99).
         tensorboard_log: folder of TensorBoard runs (None: no logging).
         seed: seeds the episodes, the exploration and the vocabulary.
@@ -84,6 +87,7 @@ class RLVCAgent(SB3Model):
         epsilon: float = 0.1,
         n_envs: int = 128,
         max_keypoints: int = 24,
+        compounds: bool = True,
         gamma: float | None = None,
         tensorboard_log: str | Path | None = None,
         seed: int = 0,
@@ -111,6 +115,7 @@ class RLVCAgent(SB3Model):
         self.n_words, self.databases = int(n_words), int(databases)
         self.alpha, self.min_count, self.max_stages = float(alpha), int(min_count), max_stages
         self.epsilon, self.n_envs, self.max_keypoints = float(epsilon), n_envs, max_keypoints
+        self.compounds = bool(compounds)
         self.gamma, self.seed = float(gamma), int(seed)
         self.tensorboard_log = tensorboard_log
         self.env: gym.Env | None = None
@@ -236,9 +241,12 @@ class RLVCAgent(SB3Model):
                 self.gamma,
                 self.alpha,
                 self.min_count,
+                use_compounds=self.compounds,
             )
             fitting = time.perf_counter() - t2
-        latest = InteractionDatabase.build(transitions, self.extractor, detected)
+        latest = InteractionDatabase.build(
+            transitions, self.extractor, detected, self.rlvc.compounds
+        )
         self.database = (
             latest if self.database is None else InteractionDatabase.concat(self.database, latest)
         )
@@ -273,16 +281,20 @@ class RLVCAgent(SB3Model):
 
     def _epsilon_greedy(self, observations: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         """(N,) actions: greedy on the classes, uniformly random with probability epsilon."""
-        greedy = self.rlvc.greedy(self.extractor.presence(list(observations))).numpy()
+        greedy = self.rlvc.greedy(self._presence(observations)).numpy()
         explore = rng.random(len(greedy)) < self.epsilon
         return np.where(explore, rng.integers(self.rlvc.n_actions, size=len(greedy)), greedy)
 
     # -- acting -----------------------------------------------------------------------------
+    def _presence(self, images: np.ndarray) -> torch.Tensor:
+        """(N, F + C) presence of the words and the learned compounds in a batch of images."""
+        return self.extractor.presence(list(images), self.rlvc.compounds)
+
     @property
     def classifier(self) -> VisualClassifier:
         """Image -> visual class (for ``vistask.wrappers.VisualClasses``)."""
         self._check_learned()
-        return VisualClassifier(self.extractor, self.rlvc.tree)
+        return VisualClassifier(self.extractor, self.rlvc.tree, self.rlvc.compounds)
 
     def _check_learned(self) -> None:
         if self.rlvc is None or self.extractor is None:
@@ -313,7 +325,7 @@ class RLVCAgent(SB3Model):
             )
         batch = images[None] if single else images
         if deterministic:
-            actions = self.rlvc.greedy(self.extractor.presence(list(batch))).numpy()
+            actions = self.rlvc.greedy(self._presence(batch)).numpy()
         else:
             actions = self._epsilon_greedy(batch, self._rng)
         return (int(actions[0]) if single else actions), None
@@ -335,6 +347,7 @@ class RLVCAgent(SB3Model):
                     "epsilon": self.epsilon,
                     "n_envs": self.n_envs,
                     "max_keypoints": self.max_keypoints,
+                    "compounds": self.compounds,
                     "gamma": self.gamma,
                     "seed": self.seed,
                 },
@@ -363,7 +376,7 @@ class RLVCAgent(SB3Model):
         agent.env_id = state["env_id"]
         agent.extractor = VisualFeatureExtractor.from_state_dict(state["extractor"])
         agent.rlvc = RLVC.from_state_dict(state["rlvc"])
-        if agent.rlvc.n_features != agent.extractor.n_features:
+        if agent.rlvc.n_features != agent.extractor.n_features + len(agent.rlvc.compounds):
             raise ValueError(f"{path}: its classes and vocabulary do not match (corrupt file)")
         agent.num_timesteps, agent._next_seed = state["num_timesteps"], state["next_seed"]
         if env is not None:

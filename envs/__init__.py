@@ -1,17 +1,25 @@
 """Gymnasium environments of vistask (installed as ``vistask.envs``).
 
-Importing this package registers ``vistask/VisualMaze-v0`` and ``vistask/GraspTrial-v0``.
+Importing this package registers ``vistask/VisualMaze-v0``, ``vistask/VisualMountainCar-v0``
+and ``vistask/GraspTrial-v0``.
 Robosuite-based modules (``scene``, ``tabletop``, ``grasp_trial``) are imported only when
 used: importing robosuite takes seconds.
 """
 
 from gymnasium.envs.registration import register, registry
 
+from vistask.envs.car_oracle import CarOracle, evaluate_car_policy, start_states
 from vistask.envs.maze_oracle import (
     EvaluationResult,
     MazeOracle,
     evaluate_policy,
     start_positions,
+)
+from vistask.envs.mountain_car import (
+    CAR_ACTION_NAMES,
+    VisualMountainCarEnv,
+    VisualMountainCarVectorEnv,
+    hill_step,
 )
 from vistask.envs.visual_maze import (
     ACTION_NAMES,
@@ -28,17 +36,33 @@ if "vistask/VisualMaze-v0" not in registry:
         vector_entry_point="vistask.envs.visual_maze:VisualMazeVectorEnv",
         max_episode_steps=50,
     )
+if "vistask/VisualMountainCar-v0" not in registry:
+    register(
+        id="vistask/VisualMountainCar-v0",
+        entry_point="vistask.envs.mountain_car:VisualMountainCarEnv",
+        vector_entry_point="vistask.envs.mountain_car:VisualMountainCarVectorEnv",
+        # The oracle reaches the top within 25 steps from every start it can win from, and
+        # gamma^100 = 0.006: a longer limit would only lengthen the random-action episodes.
+        max_episode_steps=100,
+    )
 if "vistask/GraspTrial-v0" not in registry:
     register(id="vistask/GraspTrial-v0", entry_point="vistask.envs.grasp_trial:GraspTrialEnv")
 
 __all__ = [
     "ACTION_NAMES",
+    "CAR_ACTION_NAMES",
+    "CarOracle",
     "EvaluationResult",
     "MazeGeometry",
     "MazeOracle",
     "VisualMazeEnv",
     "VisualMazeVectorEnv",
+    "VisualMountainCarEnv",
+    "VisualMountainCarVectorEnv",
     "draw_maze",
+    "evaluate_car_policy",
     "evaluate_policy",
+    "hill_step",
     "start_positions",
+    "start_states",
 ]

@@ -1,9 +1,11 @@
-"""Compare RLVC with SB3 DQN/PPO (CnnPolicy on percepts), tabular Q-learning on the true
-position and random actions, at the same interaction budgets, over several seeds.
+"""Compare RLVC (with and without compound features) with SB3 DQN/PPO (CnnPolicy on
+percepts), tabular Q-learning on the true state and random actions, at the same interaction
+budgets, over several seeds.
 
 python scripts/compare_baselines.py                      # full run: 5 seeds, budgets 1k..100k
 python scripts/compare_baselines.py --quick              # tiny budgets (what the tests run)
 python scripts/compare_baselines.py --budgets 1000 2000 5000 10000 20000 --seeds 3
+python scripts/compare_baselines.py --env vistask/VisualMountainCar-v0 --grid rlvc
 tensorboard --logdir runs/compare-<time>/tensorboard     # eval/return of every method overlays
 """
 
@@ -26,7 +28,13 @@ def main() -> None:
     parser.add_argument("--seeds", type=int, default=None, help="number of seeds (default 5)")
     parser.add_argument("--seed0", type=int, default=0, help="first seed")
     parser.add_argument("--eval-starts", type=int, default=None, help="default 100")
-    parser.add_argument("--grid", type=int, default=10, help="tabular baseline cells per side")
+    parser.add_argument(
+        "--grid",
+        type=lambda text: None if text == "rlvc" else int(text),
+        default=10,
+        help="tabular baseline's cells per dimension of the true state, or 'rlvc': as many "
+        "cells as RLVC's classes",
+    )
     parser.add_argument("--device", default="cpu", help="torch device of the SB3 networks")
     parser.add_argument(
         "--threads", type=int, default=None, help="torch CPU threads (1 on a busy machine)"

@@ -29,6 +29,9 @@ def main() -> None:
     parser.add_argument(
         "--out", default=None, help="run directory (default runs/train_rlvc-<time>)"
     )
+    parser.add_argument(
+        "--no-compounds", action="store_true", help="RLVC without compound features"
+    )
     parser.add_argument("--no-progress", action="store_true")
     args = parser.parse_args()
     train_rlvc(
@@ -38,6 +41,7 @@ def main() -> None:
         seed=args.seed,
         out=args.out,
         progress=not args.no_progress,
+        compounds=not args.no_compounds,
     )
 
 

@@ -11,6 +11,7 @@ from stable_baselines3.common.callbacks import CheckpointCallback, EvalCallback
 
 from vistask.agents import RLVCAgent, TabularQAgent
 from vistask.envs import MazeOracle, VisualMazeEnv, evaluate_policy, start_positions
+from vistask.experiments.tasks import MazeTask
 from vistask.experiments.train_rlvc import agent_policy, train_rlvc, true_grid_policy
 from vistask.features import VisualFeatureExtractor
 from vistask.rlvc import VisualClassifier, collect
@@ -47,7 +48,7 @@ def test_rlvc_reaches_near_oracle_return_on_a_small_maze(small_agent):
     database = small_agent.database
     assert len(database) == small_agent.num_timesteps == 4000
     assert database.positions is not None and len(database.positions) == len(database.presence)
-    ceiling = evaluate_policy(maze, true_grid_policy(maze, database, grid=8), starts)
+    ceiling = evaluate_policy(maze, true_grid_policy(MazeTask(maze, 1), database, grid=8), starts)
     assert ceiling.mean >= 0.9 * oracle
 
 
@@ -56,12 +57,13 @@ def test_true_grid_aggregation_of_random_interactions_is_near_the_oracle():
     starts = start_positions(maze.geometry, 60)
     oracle = evaluate_policy(maze, MazeOracle.solve(maze.geometry).as_policy(), starts).mean
     database = collect(maze, 3000, seed=0)
-    ceiling = evaluate_policy(maze, true_grid_policy(maze, database, grid=8), starts)
-    coarse = evaluate_policy(maze, true_grid_policy(maze, database, grid=1), starts)
+    task = MazeTask(maze, 1)
+    ceiling = evaluate_policy(maze, true_grid_policy(task, database, grid=8), starts)
+    coarse = evaluate_policy(maze, true_grid_policy(task, database, grid=1), starts)
     assert ceiling.mean >= 0.9 * oracle > coarse.mean
     database.positions = None
-    with pytest.raises(ValueError, match="true positions"):
-        true_grid_policy(maze, database)
+    with pytest.raises(ValueError, match="true states"):
+        true_grid_policy(task, database)
 
 
 def test_visual_features_wrapper_passes_check_env(small_agent):

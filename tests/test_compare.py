@@ -13,15 +13,14 @@ import torch
 from vistask.experiments.compare import (
     METHODS,
     Comparison,
-    GridCells,
     RunResult,
     aggregate,
     compare,
-    grid_cells,
     interactions_to,
     iqm_ci,
     speedups,
 )
+from vistask.experiments.tasks import GridCells, task_for
 
 
 @pytest.fixture(scope="module")
@@ -82,17 +81,26 @@ def test_tensorboard_holds_eval_return_against_interactions(quick_run):
     assert [e.value for e in events] == pytest.approx(run["returns"], rel=1e-5)
 
 
-def test_grid_cells_wrapper_follows_the_true_position():
-    env = GridCells(gym.make("vistask/VisualMaze-v0"), grid=10)
+@pytest.mark.parametrize("env_id", ["vistask/VisualMaze-v0", "vistask/VisualMountainCar-v0"])
+def test_grid_cells_wrapper_follows_the_true_state(env_id):
+    task = task_for(env_id, eval_starts=1)
+    env = GridCells(gym.make(env_id), task, grid=10)
     obs, info = env.reset(seed=3)
     for _ in range(20):
-        assert obs == grid_cells(info["position"], 1.0, 10)[0]
+        assert obs == task.cells(info["position"][None], 10)[0]
         assert env.observation_space.contains(obs)
         obs, _, terminated, truncated, info = env.step(env.action_space.sample())
         if terminated or truncated:
             obs, info = env.reset()
+
+
+def test_true_state_cells_cover_the_grid_row_by_row():
+    maze = task_for("vistask/VisualMaze-v0", eval_starts=1)
     corners = np.array([[0.0, 0.0], [0.99, 0.0], [0.0, 0.99], [1.0, 1.0]])
-    assert grid_cells(corners, 1.0, 10).tolist() == [0, 9, 90, 99]
+    assert maze.cells(corners, 10).tolist() == [0, 9, 90, 99]
+    car = task_for("vistask/VisualMountainCar-v0", eval_starts=1)
+    corners = np.array([[-1.0, -3.0], [0.99, -3.0], [-1.0, 2.99], [1.0, 3.0], [0.05, 0.1]])
+    assert car.cells(corners, 10).tolist() == [0, 9, 90, 99, 55]
 
 
 def test_aggregation_iqm_ci_and_thresholds():

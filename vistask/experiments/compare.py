@@ -1,9 +1,10 @@
-"""RLVC against Stable-Baselines3 DQN/PPO, tabular Q-learning on the true state, and random
-actions, on the same interaction budgets, seeds and evaluation starts
-(``scripts/compare_baselines.py``).
+"""RLVC (with and without compound features) against Stable-Baselines3 DQN/PPO, tabular
+Q-learning on the true state, and random actions, on the same interaction budgets, seeds and
+evaluation starts (``scripts/compare_baselines.py``), on an env with an oracle (the visual maze,
+the visual mountain car: ``tasks.py``).
 
-Every method is scored at every budget B (environment interactions) by ``evaluate_policy``:
-the mean discounted return from the same fixed start positions with the same noise. RLVC
+Every method is scored at every budget B (environment interactions) by its task's evaluation:
+the mean discounted return from the same fixed starts with the same noise. RLVC
 learns from one fixed database, so its checkpoint at B is a fresh agent learned on B
 interactions; the other learners train once per seed and are evaluated when they pass B.
 Curves are aggregated over seeds with the interquartile mean (IQM) and percentile-bootstrap
@@ -21,53 +22,19 @@ from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
-from gymnasium import spaces
 from scipy import stats
 
 from vistask.agents import RLVCAgent, TabularQAgent
 from vistask.checks import check_at_least
-from vistask.envs import (
-    ACTION_NAMES,
-    MazeOracle,
-    VisualMazeEnv,
-    evaluate_policy,
-    start_positions,
-)
-from vistask.envs.maze_oracle import Policy, grid_cells
+from vistask.envs.maze_oracle import Policy
+from vistask.experiments.tasks import GridCells, Task, task_for
 from vistask.rlvc import random_policy
 from vistask.runs import print_table, run_dir, tensorboard, write_summary
 
-METHODS = ("rlvc", "dqn", "ppo", "tabular", "random")
+METHODS = ("rlvc", "rlvc_no_compounds", "dqn", "ppo", "tabular", "random")
 DEFAULT_BUDGETS = (1_000, 2_000, 5_000, 10_000, 20_000, 50_000, 100_000)
 QUICK_BUDGETS = (300, 1_000)
 THRESHOLDS = (0.9, 0.75)  # fractions of the oracle's return; 0.9 is the issue's target
-
-
-# -- privileged-state baseline ------------------------------------------------------------
-class GridCells(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
-    """Maze image observation -> ``Discrete(grid**2)`` cell of the *true* position.
-
-    The privileged-state oracle of the paper's comparisons: tabular Q-learning on this
-    wrapper sees where the agent is, never the percept.
-
-    Args:
-        env: a visual maze (its unwrapped env has ``position`` (2,) and ``geometry.size``).
-        grid: cells per side.
-    """
-
-    def __init__(self, env: gym.Env, grid: int = 10) -> None:
-        if not isinstance(env.unwrapped, VisualMazeEnv):
-            raise TypeError(f"GridCells needs a VisualMazeEnv, got {type(env.unwrapped).__name__}")
-        if grid < 1:
-            raise ValueError(f"grid must be >= 1, got {grid}")
-        gym.utils.RecordConstructorArgs.__init__(self, grid=grid)
-        gym.ObservationWrapper.__init__(self, env)
-        self.grid = grid
-        self.observation_space = spaces.Discrete(grid * grid)
-
-    def observation(self, observation: np.ndarray) -> int:
-        maze = self.env.unwrapped
-        return int(grid_cells(maze.position, maze.geometry.size, self.grid)[0])
 
 
 # -- configuration ------------------------------------------------------------------------
@@ -78,14 +45,16 @@ class Comparison:
         >>> summary = compare(Comparison(methods=("rlvc", "tabular"), seeds=3), out="runs/c")
 
     Args:
-        env_id, env_kwargs: the environment (``gym.make`` arguments); a visual maze, because
-            the oracle and the evaluation need the true geometry.
+        env_id, env_kwargs: the environment (``gym.make`` arguments): one with an oracle
+            (``tasks.task_for``).
         methods: subset of ``METHODS``.
         budgets: increasing interaction budgets at which every method is evaluated.
         seeds: number of seeds (seed k uses ``seed0 + k``).
         seed0: first seed.
         eval_starts: number of fixed evaluation start positions.
-        grid: cells per side of the tabular baseline's state discretization.
+        grid: cells per dimension of the tabular baseline's true-state grid (None: as many
+            cells as RLVC's classes at the largest budget, the paper's "equivalent number of
+            states"; RLVC then runs first).
         dqn_kwargs, ppo_kwargs: extra SB3 constructor arguments (override the defaults).
         device: torch device of the SB3 networks.
     """
@@ -99,7 +68,7 @@ class Comparison:
         seeds: int = 5,
         seed0: int = 0,
         eval_starts: int = 100,
-        grid: int = 10,
+        grid: int | None = 10,
         dqn_kwargs: dict | None = None,
         ppo_kwargs: dict | None = None,
         device: str = "cpu",
@@ -110,7 +79,9 @@ class Comparison:
             raise ValueError(f"methods must be a non-empty subset of {METHODS}, got {methods}")
         if not budgets or min(budgets) < 1 or list(budgets) != sorted(set(budgets)):
             raise ValueError(f"budgets must be strictly increasing positive ints, got {budgets}")
-        check_at_least(1, seeds=seeds, eval_starts=eval_starts, grid=grid)
+        check_at_least(1, seeds=seeds, eval_starts=eval_starts)
+        if grid is not None:
+            check_at_least(1, grid=grid)
         self.env_id, self.env_kwargs = env_id, dict(env_kwargs or {})
         self.methods, self.budgets, self.seeds, self.seed0 = methods, budgets, seeds, seed0
         self.eval_starts, self.grid, self.device = eval_starts, grid, device
@@ -158,6 +129,7 @@ class RunResult:
     returns: list[float]
     train_seconds: float
     seconds: float
+    classes: list[int] | None = None  # RLVC's classes at each budget
 
 
 # evaluate(policy) -> mean discounted return from the fixed starts; log(budget, value).
@@ -175,43 +147,41 @@ def _model_policy(model) -> Policy:
     return lambda percepts, positions: model.predict(percepts, deterministic=True)[0]
 
 
-def _tabular_policy(agent: TabularQAgent, size: float, grid: int) -> Policy:
-    return lambda percepts, positions: agent.predict(grid_cells(positions, size, grid))[0]
-
-
 def run_rlvc(
-    config: Comparison, seed: int, evaluate: Evaluate, log: Log
-) -> tuple[list[float], float]:
+    config: Comparison, seed: int, evaluate: Evaluate, log: Log, compounds: bool = True
+) -> tuple[list[float], float, list[int]]:
     """A fresh RLVCAgent per budget (RLVC learns from a fixed database of B interactions).
 
     Every ``run_*`` returns the evaluation return at each budget and the training seconds
-    (evaluation excluded); ``log`` receives each (budget, return) as it is measured.
+    (evaluation excluded); ``log`` receives each (budget, return) as it is measured. RLVC also
+    returns its number of classes at each budget.
     """
-    returns, train = [], 0.0
+    returns, train, classes = [], 0.0, []
     for budget in config.budgets:
         env = gym.make(config.env_id, **config.env_kwargs)
         t0 = time.perf_counter()
-        agent = RLVCAgent(env, seed=seed)
+        agent = RLVCAgent(env, compounds=compounds, seed=seed)
         agent.learn(budget, progress_bar=False)
         train += time.perf_counter() - t0
         returns.append(evaluate(lambda percepts, positions, a=agent: a.predict(percepts)[0]))
+        classes.append(agent.rlvc.n_classes)
         log(budget, returns[-1])
-    return returns, train
+    return returns, train, classes
 
 
 def run_tabular(
-    config: Comparison, seed: int, evaluate: Evaluate, log: Log
+    config: Comparison, seed: int, evaluate: Evaluate, log: Log, task: Task, grid: int
 ) -> tuple[list[float], float]:
-    """Q-learning on true-position grid cells, trained once and evaluated at every budget."""
-    env = GridCells(gym.make(config.env_id, **config.env_kwargs), config.grid)
+    """Q-learning on true-state grid cells, trained once and evaluated at every budget."""
+    env = GridCells(gym.make(config.env_id, **config.env_kwargs), task, grid)
     agent = TabularQAgent(env, seed=seed)
-    size = env.unwrapped.geometry.size
+    policy = lambda percepts, states: agent.predict(task.cells(states, grid))[0]  # noqa: E731
     returns, train = [], 0.0
     for budget in config.budgets:
         t0 = time.perf_counter()
         agent.learn(budget - agent.num_timesteps, reset_num_timesteps=False)
         train += time.perf_counter() - t0
-        returns.append(evaluate(_tabular_policy(agent, size, config.grid)))
+        returns.append(evaluate(policy))
         log(budget, returns[-1])
     return returns, train
 
@@ -220,7 +190,8 @@ def run_random(
     config: Comparison, seed: int, evaluate: Evaluate, log: Log
 ) -> tuple[list[float], float]:
     """Uniformly random actions: no learning, the same score at every budget up to noise."""
-    returns, n_actions = [], len(ACTION_NAMES)
+    n_actions = int(gym.make(config.env_id, **config.env_kwargs).action_space.n)
+    returns = []
     for budget in config.budgets:
         returns.append(evaluate(_random_policy(seed + budget, n_actions)))
         log(budget, returns[-1])
@@ -266,14 +237,13 @@ def run_sb3(
 
 
 def run_method(
-    config: Comparison, method: str, seed: int, starts: np.ndarray, tb_root: Path
+    config: Comparison, method: str, seed: int, task: Task, tb_root: Path, grid: int
 ) -> RunResult:
-    """Train and evaluate ``method`` with ``seed``; logs ``eval/return`` against
-    interactions to ``tb_root/<method>-seed<seed>``."""
-    maze = gym.make(config.env_id, **config.env_kwargs).unwrapped
+    """Train and evaluate ``method`` with ``seed`` (the tabular baseline on a ``grid`` per
+    dimension); logs ``eval/return`` against interactions to ``tb_root/<method>-seed<seed>``."""
 
     def evaluate(policy: Policy) -> float:
-        return evaluate_policy(maze, policy, starts).mean
+        return task.evaluate(policy).mean
 
     writer = tensorboard(tb_root / f"{method}-seed{seed}")
 
@@ -281,16 +251,32 @@ def run_method(
         writer.add_scalar("eval/return", value, budget)
         writer.flush()
 
-    t0 = time.perf_counter()
+    t0, classes = time.perf_counter(), None
     if method in ("dqn", "ppo"):
         returns, train = run_sb3(config, method, seed, evaluate, log, tb_root / f"seed{seed}")
+    elif method.startswith("rlvc"):
+        compounds = method == "rlvc"
+        returns, train, classes = run_rlvc(config, seed, evaluate, log, compounds)
+    elif method == "tabular":
+        returns, train = run_tabular(config, seed, evaluate, log, task, grid)
     else:
-        runner = {"rlvc": run_rlvc, "tabular": run_tabular, "random": run_random}[method]
-        returns, train = runner(config, seed, evaluate, log)
+        returns, train = run_random(config, seed, evaluate, log)
     writer.close()
     if len(returns) != len(config.budgets):
         raise RuntimeError(f"{method} produced {len(returns)} of {len(config.budgets)} returns")
-    return RunResult(method, seed, list(config.budgets), returns, train, time.perf_counter() - t0)
+    seconds = time.perf_counter() - t0
+    return RunResult(method, seed, list(config.budgets), returns, train, seconds, classes)
+
+
+def tabular_grid(results: list[RunResult]) -> int:
+    """Cells per dimension giving the tabular baseline as many cells as RLVC's classes (the
+    median over seeds at the largest budget; RLVC with compounds if it ran)."""
+    runs = [r for r in results if r.method == "rlvc"] or [
+        r for r in results if r.method.startswith("rlvc")
+    ]
+    if not runs:
+        raise ValueError("grid=None matches RLVC's classes: include an rlvc method")
+    return max(1, round(float(np.sqrt(np.median([r.classes[-1] for r in runs])))))
 
 
 # -- aggregation --------------------------------------------------------------------------
@@ -455,7 +441,7 @@ def plot_curves(path: Path, methods: dict[str, dict], budgets: Sequence[int], or
         c = m["curve"]
         (line,) = ax.plot(budgets, c["iqm"], marker="o", label=name)
         ax.fill_between(budgets, c["ci_low"], c["ci_high"], color=line.get_color(), alpha=0.2)
-    ax.axhline(oracle, color="k", linestyle="--", label="oracle (true position)")
+    ax.axhline(oracle, color="k", linestyle="--", label="oracle (true state)")
     ax.axhline(0.9 * oracle, color="k", linestyle=":", label="90% of oracle")
     ax.set_xscale("log")
     ax.set_xlabel("environment interactions")
@@ -489,16 +475,24 @@ def compare(
     config = config or Comparison()
     start = time.perf_counter()
     out = run_dir("compare", out)
-    maze = gym.make(config.env_id, **config.env_kwargs).unwrapped
-    if not isinstance(maze, VisualMazeEnv):
-        raise TypeError(f"the comparison scores policies on a maze; {config.env_id} is no maze")
-    starts = start_positions(maze.geometry, config.eval_starts)
-    oracle_return = evaluate_policy(maze, MazeOracle.solve(maze.geometry).as_policy(), starts).mean
+    task = task_for(config.env_id, config.env_kwargs, config.eval_starts)
+    if task is None:
+        raise TypeError(
+            f"the comparison scores policies against an oracle, and {config.env_id} has none: "
+            "use vistask/VisualMaze-v0 or vistask/VisualMountainCar-v0"
+        )
+    oracle_return = task.oracle_return
+    methods = list(config.methods)
+    if config.grid is None and "tabular" in methods:  # its grid follows RLVC's classes
+        rlvc_first = sorted(methods, key=lambda m: not m.startswith("rlvc"))
+        methods = rlvc_first
 
-    results = []
-    for method in config.methods:
+    results, grid = [], config.grid
+    for method in methods:
+        if method == "tabular" and grid is None:
+            grid = tabular_grid(results)
         for k in range(config.seeds):
-            result = run_method(config, method, config.seed0 + k, starts, out / "tensorboard")
+            result = run_method(config, method, config.seed0 + k, task, out / "tensorboard", grid)
             results.append(result)
             with open(out / "runs.jsonl", "a") as runs:  # kept if a later run fails
                 runs.write(json.dumps(asdict(result)) + "\n")
@@ -519,6 +513,7 @@ def compare(
         "config": config.params(),
         "oracle_return": oracle_return,
         "budgets": list(config.budgets),
+        "tabular_grid": grid,
         "methods": methods,
         "ratios": speedups(methods, config.budgets),
         "runs": [asdict(r) for r in results],

@@ -1,7 +1,7 @@
 """Train RLVC on an image env, score it, log it, draw it (``scripts/train_rlvc.py``).
 
-On the visual maze the greedy policy is scored against the maze's oracle from fixed starts,
-with pictures of values and policies; on any other image env it is scored by its mean
+On the visual maze and the visual mountain car the greedy policy is scored against the env's
+oracle from fixed starts, with pictures; on any other image env it is scored by its mean
 episode reward over seeded episodes.
 """
 
@@ -12,6 +12,10 @@ from dataclasses import asdict
 from pathlib import Path
 
 import gymnasium as gym
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt
 import numpy as np
 import torch
 from stable_baselines3.common.callbacks import BaseCallback
@@ -19,9 +23,11 @@ from stable_baselines3.common.evaluation import evaluate_policy as sb3_evaluate_
 
 import vistask.envs  # noqa: F401  (registers the environments)
 from vistask.agents import RLVCAgent
-from vistask.envs import ACTION_NAMES, MazeOracle, VisualMazeEnv, evaluate_policy, start_positions
-from vistask.envs.maze_oracle import Policy, grid_cells
+from vistask.envs.car_plots import percepts_at, plot_car_policy, plot_road, state_grid
+from vistask.envs.maze_oracle import Policy
 from vistask.envs.maze_plots import percept_grid, plot_policy, plot_values
+from vistask.experiments.tasks import CarTask, MazeTask, Task, task_for
+from vistask.features import draw_compound
 from vistask.rlvc import InteractionDatabase, Transitions
 from vistask.rlvc.solver import estimate_mdp, value_iteration
 from vistask.runs import print_table, run_dir, write_summary
@@ -32,20 +38,19 @@ EVAL_STARTS = 100  # fixed maze starts (or seeded episodes on other envs) of an 
 
 
 def agent_policy(agent: RLVCAgent) -> Policy:
-    """The agent as a batched maze ``Policy`` (it sees percepts only, never positions)."""
-    return lambda percepts, positions: agent.predict(percepts)[0]
+    """The agent as a batched ``Policy`` (it sees percepts only, never the true state)."""
+    return lambda percepts, states: agent.predict(percepts)[0]
 
 
 def true_grid_policy(
-    maze: VisualMazeEnv, transitions: Transitions | InteractionDatabase, grid: int = 20
+    task: Task, transitions: Transitions | InteractionDatabase, grid: int = 20
 ) -> Policy:
-    """Greedy policy of value iteration on ``transitions`` with the true position cut into
-    ``grid`` x ``grid`` cells: what a perfect state aggregation of the same interactions scores,
-    a ceiling for the learned visual classes. It reads the privileged positions."""
+    """Greedy policy of value iteration on ``transitions`` with the true state cut into
+    ``grid`` cells per dimension: what a perfect state aggregation of the same interactions
+    scores, a ceiling for the learned visual classes. It reads the privileged true states."""
     if transitions.positions is None:
-        raise ValueError("the transitions hold no true positions (info['position'])")
-    size = maze.geometry.size
-    cells = torch.as_tensor(grid_cells(transitions.positions, size, grid))
+        raise ValueError("the transitions hold no true states (info['position'])")
+    cells = torch.as_tensor(task.cells(transitions.positions, grid))
     mdp = estimate_mdp(
         cells[torch.as_tensor(transitions.obs)],
         torch.as_tensor(transitions.actions),
@@ -53,31 +58,26 @@ def true_grid_policy(
         cells[torch.as_tensor(transitions.next_obs)],
         torch.as_tensor(transitions.terminal),
         grid * grid,
-        len(ACTION_NAMES),
+        int(task.env.action_space.n),
     )
-    greedy = value_iteration(mdp, maze.geometry.gamma).argmax(1).numpy()
-    return lambda percepts, positions: greedy[grid_cells(positions, size, grid)]
+    greedy = value_iteration(mdp, task.env.gamma).argmax(1).numpy()
+    return lambda percepts, states: greedy[task.cells(states, grid)]
 
 
 class Scorer:
-    """Mean return of an agent's greedy policy: from the maze's fixed starts, as a share of
-    its oracle's, or (any other env) mean episode reward over seeded episodes."""
+    """Mean return of an agent's greedy policy: from an oracle task's fixed starts (the maze,
+    the car; ``oracle_return`` is then the oracle's), or on any other env, mean episode reward
+    over seeded episodes."""
 
-    def __init__(self, env: gym.Env, episodes: int = EVAL_STARTS) -> None:
-        self.env, self.episodes = env, episodes
-        self.maze = env.unwrapped if isinstance(env.unwrapped, VisualMazeEnv) else None
-        self.oracle_return = None
-        if self.maze is not None:
-            self.starts = start_positions(self.maze.geometry, episodes)
-            self.oracle = MazeOracle.solve(self.maze.geometry)
-            self.oracle_return = evaluate_policy(
-                self.maze, self.oracle.as_policy(), self.starts
-            ).mean
+    def __init__(self, env_id: str, env_kwargs: dict | None = None, episodes: int = EVAL_STARTS):
+        self.task = task_for(env_id, env_kwargs, episodes)
+        self.env, self.episodes = gym.make(env_id, **(env_kwargs or {})), episodes
+        self.oracle_return = None if self.task is None else self.task.oracle_return
         self.last_returns: np.ndarray | None = None
 
     def __call__(self, agent: RLVCAgent) -> float:
-        if self.maze is not None:
-            self.last_returns = evaluate_policy(self.maze, agent_policy(agent), self.starts).returns
+        if self.task is not None:
+            self.last_returns = self.task.evaluate(agent_policy(agent)).returns
         else:
             self.env.reset(seed=0)  # seeds the episodes that follow
             rewards, _ = sb3_evaluate_policy(
@@ -108,10 +108,10 @@ class EvaluateEvery(BaseCallback):
         return True
 
 
-def maze_pictures(agent: RLVCAgent, scorer: Scorer, out: Path) -> dict:
+def maze_pictures(agent: RLVCAgent, task: MazeTask, out: Path) -> dict:
     """Fig. 4 (values) and Fig. 3 right (policies) over the true positions, and how often the
     greedy action is the oracle's on a 50 x 50 grid."""
-    maze, oracle = scorer.maze, scorer.oracle
+    maze, oracle = task.env, task.oracle
     classes = percept_grid(maze, lambda images: agent.classifier.classify(images).numpy(), 50)
     free = ~np.isnan(classes)
     index = np.nan_to_num(classes).astype(int)
@@ -128,6 +128,92 @@ def maze_pictures(agent: RLVCAgent, scorer: Scorer, out: Path) -> dict:
     return {"policy_agreement_with_oracle": float((actions == oracle.policy)[free].mean())}
 
 
+def car_pictures(agent: RLVCAgent, task: CarTask, out: Path, grid: int = 50) -> dict:
+    """Fig. 6 top (the road, the percept's window and gauge), Fig. 6 bottom (a compound the
+    classes test, drawn on a percept that shows it), Fig. 7 (RLVC's classes and greedy actions
+    over the true (p, s) plane beside the oracle's policy), and how often the greedy action is
+    the oracle's on a ``grid`` x ``grid`` plane."""
+    car, rlvc = task.env, agent.rlvc
+    plot_road(car, np.array([-0.5, 1.0]), out / "road_and_gauge.png")
+    states = state_grid(grid)
+    percepts = list(percepts_at(car, states))
+    classes = agent.classifier.classify(percepts).numpy()
+    actions = rlvc.q.argmax(1).numpy()[classes]
+    oracle = task.oracle.act(states)
+    plot_car_policy(
+        {
+            "RLVC (percepts)": actions.reshape(grid, grid),
+            "oracle (true state)": oracle.reshape(grid, grid),
+        },
+        out / "car_policy.png",
+        title="Fig. 7: greedy actions over (position, speed)",
+    )
+    plot_classes(classes.reshape(grid, grid), out / "car_classes.png")
+    summary = {"policy_agreement_with_oracle": float((actions == oracle).mean())}
+    tested = rlvc.compound_features
+    if tested:
+        first = rlvc.n_features - len(rlvc.compounds)
+        compound = rlvc.compounds[tested[0] - first]
+        occurrences = agent.extractor.occurrences(percepts, rlvc.compounds)
+        shown = np.flatnonzero(occurrences.presence(rlvc.n_features)[:, tested[0]].numpy())
+        if len(shown):
+            k = int(shown[len(shown) // 2])
+            one = occurrences.select(np.array([k]))
+            picture = draw_compound(percepts[k], one, compound)
+            plt.imsave(out / "compound.png", picture)
+            summary["drawn_compound"] = {"feature": tested[0], "state": states[k].tolist()}
+    return summary
+
+
+def plot_classes(classes: np.ndarray, path: Path) -> None:
+    """Visual classes over the (p, s) plane, one colour per class (Fig. 7)."""
+    fig, ax = plt.subplots(figsize=(4.5, 3.6))
+    colours = np.random.default_rng(0).permutation(int(classes.max()) + 1)
+    ax.imshow(
+        colours[classes],
+        cmap="tab20",
+        origin="lower",
+        extent=(-1, 1, -3, 3),
+        aspect="auto",
+        interpolation="nearest",
+    )
+    ax.set_title(f"RLVC's visual classes ({len(np.unique(classes))} on this plane)")
+    ax.set_xlabel("position p")
+    ax.set_ylabel("speed s")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def feature_r2(presence: torch.Tensor, values: np.ndarray) -> torch.Tensor:
+    """(F,) share of the variance of ``values`` (M,) that each feature's presence explains
+    (presence (M, F) bool): between-group over total sum of squares, 0 to 1."""
+    v = torch.as_tensor(values, dtype=torch.float64)
+    percept, feature = presence.nonzero(as_tuple=True)
+    n_features, total = presence.shape[1], float(((v - v.mean()) ** 2).sum())
+    n_f = torch.bincount(feature, minlength=n_features).double()
+    s_f = torch.zeros(n_features, dtype=torch.float64).index_add_(0, feature, v[percept])
+    n_nf, s_nf = len(v) - n_f, float(v.sum()) - s_f
+    mean = float(v.mean())
+    between = s_f**2 / n_f.clamp_min(1) + s_nf**2 / n_nf.clamp_min(1) - len(v) * mean**2
+    return (between / total).clamp(0, 1)
+
+
+def velocity_readability(agent: RLVCAgent) -> dict:
+    """How well one feature reads the car's velocity over the agent's percepts: the largest
+    share of the velocity's variance explained by the presence of a single word, and of a
+    single learned compound (a word alone should read it poorly: the gauge shows velocity
+    in the relation between the needle's tip and the numerals)."""
+    db = agent.database
+    r2 = feature_r2(db.presence, db.positions[:, 1])
+    words = agent.extractor.n_features
+    best_compound = float(r2[words:].max()) if len(r2) > words else None
+    return {
+        "velocity_r2_best_word": float(r2[:words].max()),
+        "velocity_r2_best_compound": best_compound,
+    }
+
+
 def train_rlvc(
     env_id: str = "vistask/VisualMaze-v0",
     env_kwargs: dict | None = None,
@@ -136,6 +222,7 @@ def train_rlvc(
     out: str | Path | None = None,
     progress: bool = True,
     pictures: bool = True,
+    compounds: bool = True,
 ) -> dict:
     """Learn visual classes with ``RLVCAgent``'s defaults, score the greedy policy, save the
     agent, its TensorBoard run, pictures and ``summary.json`` in ``out``.
@@ -148,6 +235,7 @@ def train_rlvc(
         out: run directory (default ``runs/train_rlvc-<time>``).
         progress: show progress bars.
         pictures: draw values and policies (maze only).
+        compounds: let the agent make compound features (``RLVCAgent``'s ``compounds``).
 
     Returns:
         The summary written to ``summary.json``.
@@ -155,8 +243,8 @@ def train_rlvc(
     start = time.perf_counter()
     out = run_dir("train_rlvc", out)
     env = gym.make(env_id, **(env_kwargs or {}))
-    scorer = Scorer(gym.make(env_id, **(env_kwargs or {})))
-    agent = RLVCAgent(env, seed=seed, tensorboard_log=out / "tensorboard")
+    scorer = Scorer(env_id, env_kwargs)
+    agent = RLVCAgent(env, compounds=compounds, seed=seed, tensorboard_log=out / "tensorboard")
     evaluations = EvaluateEvery(scorer)
     agent.learn(interactions, callback=evaluations, progress_bar=progress)
     learned = time.perf_counter()
@@ -171,22 +259,29 @@ def train_rlvc(
         "stages": len(rlvc.history),
         "classes": rlvc.n_classes,
         "selected_features": len(rlvc.tree.selected_features),
+        "compound_features": len(rlvc.compound_features),
+        "compounds_made": len(rlvc.compounds),
         "vocabulary_size": agent.extractor.n_features,
         "interactions": agent.num_timesteps,
         "evaluations": evaluations.evaluations,
     }
-    if scorer.maze is not None:
-        ceiling = true_grid_policy(scorer.maze, agent.database)  # the agent's own interactions
-        grid_return = evaluate_policy(scorer.maze, ceiling, scorer.starts).mean
+    task = scorer.task
+    if task is not None:
+        ceiling = true_grid_policy(task, agent.database)  # the agent's own interactions
         summary |= {
-            "return_ratio": final_return / scorer.oracle_return,
-            "oracle_return": scorer.oracle_return,
-            "true_grid_return_ratio": grid_return / scorer.oracle_return,
-            "starts_never_exiting": int((scorer.last_returns == 0).sum()),
-            "paper": PAPER,
+            "return_ratio": final_return / task.oracle_return,
+            "oracle_return": task.oracle_return,
+            "true_grid_return_ratio": task.evaluate(ceiling).mean / task.oracle_return,
         }
+    if isinstance(task, MazeTask):
+        summary |= {"starts_never_exiting": int((scorer.last_returns == 0).sum()), "paper": PAPER}
         if pictures:
-            summary |= maze_pictures(agent, scorer, out)
+            summary |= maze_pictures(agent, task, out)
+    if isinstance(task, CarTask):
+        summary |= {"starts_failing": int((scorer.last_returns <= 0).sum())}
+        summary |= velocity_readability(agent)
+        if pictures:
+            summary |= car_pictures(agent, task, out)
     summary |= {
         "seconds": time.perf_counter() - start,
         "learn_seconds": learned - start,
@@ -195,7 +290,8 @@ def train_rlvc(
             "feature_extraction": agent.timing["extract"],
             "vocabulary": agent.timing["vocabulary"],
             "q_solving": rlvc.timing.solve,
-            "split_search": rlvc.timing.split,
+            "split_search": rlvc.timing.split - rlvc.timing.compounds,
+            "compound_search": rlvc.timing.compounds,
             "evaluation": evaluations.seconds,
         },
         "history": [asdict(r) for r in rlvc.history],
@@ -213,13 +309,28 @@ def print_summary(summary: dict, out: Path) -> None:
             "return ratio (RLVC / oracle)": summary["return_ratio"],
             "oracle mean discounted return": summary["oracle_return"],
             "same interactions on a true 20x20 grid / oracle": summary["true_grid_return_ratio"],
-            "starts never reaching an exit": summary["starts_never_exiting"],
         }
+    for key, name in (
+        ("starts_never_exiting", "starts never reaching an exit"),
+        ("starts_failing", "starts not reaching the goal"),
+        ("velocity_r2_best_word", "velocity R^2 of the best single word"),
+        ("velocity_r2_best_compound", "velocity R^2 of the best compound"),
+    ):
+        if key in summary:
+            rows[name] = summary[key]
+    paper = summary.get("paper", {})  # the paper's maze figures, beside the maze's
+
+    def label(name: str, key: str) -> str:
+        return f"{name} (paper {paper[key]})" if key in paper else name
+
     rows |= {
-        "stages (paper 84)": summary["stages"],
-        "visual classes (paper 205)": summary["classes"],
-        "selected features (paper 200)": summary["selected_features"],
-        "vocabulary size (paper 2298)": summary["vocabulary_size"],
+        label("stages", "stages"): summary["stages"],
+        label("visual classes", "classes"): summary["classes"],
+        label("selected features", "selected_features"): summary["selected_features"],
+        "compound features (tested / made)": (
+            f"{summary['compound_features']} / {summary['compounds_made']}"
+        ),
+        label("vocabulary size", "vocabulary_size"): summary["vocabulary_size"],
         "interactions": summary["interactions"],
         **{f"seconds: {k}": v for k, v in summary["seconds_split"].items()},
         "seconds: whole run": summary["seconds"],

@@ -22,10 +22,12 @@ SIFT_NORM = 512.0  # OpenCV scales SIFT descriptors to about this Euclidean norm
 
 @dataclass
 class Keypoints:
-    """Keypoints of one image: ``xy`` (K, 2) pixel (x, y), ``descriptors`` (K, D), float32."""
+    """Keypoints of one image: ``xy`` (K, 2) pixel (x, y), ``descriptors`` (K, D) and
+    ``scale`` (K,) (the diameter of the keypoint's neighbourhood, in pixels), float32."""
 
     xy: np.ndarray
     descriptors: np.ndarray
+    scale: np.ndarray
 
     def __len__(self) -> int:
         return len(self.xy)
@@ -126,11 +128,12 @@ class SiftExtractor:
         points, descriptors = self._sift().detectAndCompute(grey, None)
         if descriptors is None:
             empty = np.zeros((0, self.descriptor_size), np.float32)
-            return Keypoints(np.zeros((0, 2), np.float32), empty)
+            return Keypoints(np.zeros((0, 2), np.float32), empty, np.zeros(0, np.float32))
         xy = np.array([p.pt for p in points], np.float32).reshape(-1, 2)
+        scale = np.array([p.size for p in points], np.float32)
         if self.color_weight > 0:
             descriptors = np.hstack([descriptors, self._chromaticity(image, xy)])
-        return Keypoints(xy, descriptors.astype(np.float32, copy=False))
+        return Keypoints(xy, descriptors.astype(np.float32, copy=False), scale)
 
     def _chromaticity(self, image: np.ndarray, xy: np.ndarray) -> np.ndarray:
         """(K, 2) mean (r, g) chromaticity in a 7x7 box at each keypoint, scaled to SIFT's norm."""

@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from vistask.features.compounds import Compound, Occurrences, add_compound_occurrences
 from vistask.features.keypoints import Keypoints, SiftExtractor
 from vistask.kmeans import kmeans, nearest_centroids
 
@@ -196,7 +197,7 @@ class VisualFeatureExtractor:
         self.groups = groups
         self.max_distance = max_distance
         self.cache_size = cache_size
-        self._cache: dict[tuple, np.ndarray] = {}  # image digest -> present feature ids
+        self._cache: dict[tuple, tuple] = {}  # image digest -> (words, xy, scale)
 
     def __getstate__(self) -> dict:
         # Pickled copies (subprocess vector envs) start with an empty cache.
@@ -291,35 +292,69 @@ class VisualFeatureExtractor:
         bounds = np.searchsorted(image, np.arange(1, len(detected)))
         return list(zip(np.split(local, bounds), np.split(words.numpy(), bounds), strict=True))
 
-    def presence_of(self, detected: Sequence[Keypoints]) -> torch.Tensor:
-        """(N, F) bool presence matrix of already extracted keypoints."""
-        return self._matrix([words for _, words in self.words(detected)])
+    def occurrences_of(
+        self, detected: Sequence[Keypoints], compounds: Sequence[Compound] = ()
+    ) -> Occurrences:
+        """Where each word (and compound) occurs in images whose keypoints are already
+        extracted (see ``occurrences``)."""
+        words = self._table(
+            [
+                (w, k.xy[i], k.scale[i])
+                for k, (i, w) in zip(detected, self.words(detected), strict=True)
+            ]
+        )
+        return add_compound_occurrences(words, list(compounds), self.n_features)
 
-    def _matrix(self, features: Sequence[np.ndarray]) -> torch.Tensor:
-        """(N, F) bool matrix with row i true at the feature ids ``features[i]``."""
-        rows = np.repeat(np.arange(len(features)), [len(f) for f in features])
-        cols = np.concatenate([np.zeros(0, np.int64), *features])
-        presence = torch.zeros(len(features), self.n_features, dtype=torch.bool)
-        presence[torch.from_numpy(rows), torch.from_numpy(cols)] = True
-        return presence
+    @staticmethod
+    def _table(per_image: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray]]) -> Occurrences:
+        """One ``Occurrences`` table from per-image (words, xy, scale)."""
+        sizes = [len(words) for words, _, _ in per_image]
+        return Occurrences(
+            np.repeat(np.arange(len(per_image)), sizes),
+            np.concatenate([np.zeros(0, np.int32)] + [w for w, _, _ in per_image]),
+            np.concatenate([np.zeros((0, 2), np.float32)] + [xy for _, xy, _ in per_image]),
+            np.concatenate([np.zeros(0, np.float32)] + [s for _, _, s in per_image]),
+            len(per_image),
+        )
 
-    def presence(self, images: Sequence[np.ndarray]) -> torch.Tensor:
-        """(N, F) bool: feature f present in image i. Images are (H, W, 3) uint8.
+    def occurrences(
+        self, images: Sequence[np.ndarray], compounds: Sequence[Compound] = ()
+    ) -> Occurrences:
+        """Where each word occurs in each image (keypoint position and scale), and each of
+        ``compounds``, compound c as feature ``n_features + c``.
 
         Each distinct image is extracted once: repeats, within the batch or cached from
         earlier calls, are looked up by a digest of their pixels.
         """
         keys = [_digest(image) for image in images]
         todo = {key: i for i, key in enumerate(keys) if key not in self._cache}
-        found: dict[tuple, np.ndarray] = {}
+        found: dict[tuple, tuple] = {}
         if todo:
-            pairs = self.words(self.keypoints.batch([images[i] for i in todo.values()]))
-            found = {key: words for key, (_, words) in zip(todo, pairs, strict=True)}
+            detected = self.keypoints.batch([images[i] for i in todo.values()])
+            pairs = self.words(detected)
+            found = {
+                key: (w.astype(np.int32), k.xy[i], k.scale[i])
+                for key, k, (i, w) in zip(todo, detected, pairs, strict=True)
+            }
             if len(self._cache) + len(found) > self.cache_size:
                 self._cache.clear()  # simpler than LRU, and rare: the cache holds 100k views
             if self.cache_size:
                 self._cache.update(found)
-        return self._matrix([found[key] if key in found else self._cache[key] for key in keys])
+        words = self._table([found[key] if key in found else self._cache[key] for key in keys])
+        return add_compound_occurrences(words, list(compounds), self.n_features)
+
+    def presence_of(
+        self, detected: Sequence[Keypoints], compounds: Sequence[Compound] = ()
+    ) -> torch.Tensor:
+        """(N, F + C) bool presence matrix of already extracted keypoints."""
+        return self.occurrences_of(detected, compounds).presence(self.n_features + len(compounds))
+
+    def presence(
+        self, images: Sequence[np.ndarray], compounds: Sequence[Compound] = ()
+    ) -> torch.Tensor:
+        """(N, F + C) bool: feature f present in image i, words then ``compounds``. Images are
+        (H, W, 3) uint8 (see ``occurrences``)."""
+        return self.occurrences(images, compounds).presence(self.n_features + len(compounds))
 
     def __call__(self, image: np.ndarray) -> np.ndarray:
         """(F,) int8 presence vector of one image (the ``MultiBinary`` observation)."""

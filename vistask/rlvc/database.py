@@ -10,14 +10,21 @@ scatter-adds (sparse products) instead of dense (interactions x features) produc
 from __future__ import annotations
 
 import copy
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import gymnasium as gym
 import numpy as np
 import torch
 
-from vistask.features import Keypoints, VisualFeatureExtractor, check_image_space
+from vistask.features import (
+    Compound,
+    Keypoints,
+    Occurrences,
+    VisualFeatureExtractor,
+    add_compound_occurrences,
+    check_image_space,
+)
 
 # An exploration policy maps a batch of observations (B, H, W, 3) and a generator to (B,)
 # action ids: batches let a policy over visual classes extract features of many views at once.
@@ -174,6 +181,8 @@ class InteractionDatabase:
         actions: (N,) long. rewards: (N,) float64. terminal: (N,) bool.
         positions: (M, 2) true positions when the env reported them, else None (plots and the
             true-grid ceiling only; the learner never reads them).
+        occurrences: where each feature occurs in each percept (compounds included), for the
+            compound search; None when only presence is known.
     """
 
     presence: torch.Tensor
@@ -183,6 +192,7 @@ class InteractionDatabase:
     next_obs: torch.Tensor
     terminal: torch.Tensor
     positions: np.ndarray | None = None
+    occurrences: Occurrences | None = None
     _coo: tuple[torch.Tensor, torch.Tensor] | None = field(default=None, repr=False)
 
     def __post_init__(self) -> None:
@@ -195,6 +205,8 @@ class InteractionDatabase:
         indices = torch.cat([self.obs, self.next_obs])
         if indices.min() < 0 or indices.max() >= m:
             raise ValueError(f"percept indices must lie in 0..{m - 1}")
+        if self.occurrences is not None and self.occurrences.n_images != m:
+            raise ValueError(f"occurrences are of {self.occurrences.n_images} percepts, not {m}")
 
     def __len__(self) -> int:
         return len(self.actions)
@@ -209,6 +221,7 @@ class InteractionDatabase:
         transitions: Transitions,
         extractor: VisualFeatureExtractor,
         detected: list[Keypoints] | None = None,
+        compounds: Sequence[Compound] = (),
     ) -> InteractionDatabase:
         """Extract features of every percept once and build the database.
 
@@ -217,19 +230,21 @@ class InteractionDatabase:
             extractor: the visual feature extractor (vocabulary).
             detected: keypoints of ``transitions.percepts`` if already extracted (else the
                 extractor's percept cache serves the percepts that a policy has already seen).
+            compounds: compound features learned so far, feature ids after the vocabulary's.
         """
         if detected is None:
-            presence = extractor.presence(transitions.percepts)
+            occurrences = extractor.occurrences(transitions.percepts, compounds)
         else:
-            presence = extractor.presence_of(detected)
+            occurrences = extractor.occurrences_of(detected, compounds)
         return cls(
-            presence=presence,
+            presence=occurrences.presence(extractor.n_features + len(compounds)),
             obs=torch.as_tensor(transitions.obs, dtype=torch.long),
             actions=torch.as_tensor(transitions.actions, dtype=torch.long),
             rewards=torch.as_tensor(transitions.rewards, dtype=torch.float64),
             next_obs=torch.as_tensor(transitions.next_obs, dtype=torch.long),
             terminal=torch.as_tensor(transitions.terminal, dtype=torch.bool),
             positions=transitions.positions,
+            occurrences=occurrences,
         )
 
     @classmethod
@@ -241,6 +256,7 @@ class InteractionDatabase:
             )
         m = len(first.presence)
         has_positions = first.positions is not None and second.positions is not None
+        has_occurrences = first.occurrences is not None and second.occurrences is not None
         return cls(
             presence=torch.cat([first.presence, second.presence]),
             obs=torch.cat([first.obs, second.obs + m]),
@@ -251,7 +267,21 @@ class InteractionDatabase:
             positions=np.concatenate([first.positions, second.positions])
             if has_positions
             else None,
+            occurrences=Occurrences.concat([first.occurrences, second.occurrences])
+            if has_occurrences
+            else None,
         )
+
+    def add_compounds(self, compounds: list[Compound]) -> None:
+        """Add compound features as the next feature ids (their occurrences and presence)."""
+        if self.occurrences is None:
+            raise ValueError("this database keeps no feature occurrences: compounds need them")
+        first = self.n_features
+        self.occurrences = add_compound_occurrences(self.occurrences, compounds, first)
+        new = self.occurrences.take(self.occurrences.feature >= first)
+        new.feature = new.feature - first
+        self.presence = torch.cat([self.presence, new.presence(len(compounds))], dim=1)
+        self._coo = None
 
     def interaction_features(self) -> tuple[torch.Tensor, torch.Tensor]:
         """Sparse (interaction, feature) pairs of x_t: rows (nnz,), features (nnz,), cached."""

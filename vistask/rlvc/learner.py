@@ -16,6 +16,8 @@ from pathlib import Path
 import torch
 from tqdm.auto import tqdm
 
+from vistask.features import Compound
+from vistask.rlvc.compound_search import find_compound_splits
 from vistask.rlvc.database import InteractionDatabase
 from vistask.rlvc.solver import estimate_mdp, state_values, td_errors, value_iteration
 from vistask.rlvc.split import Split, find_splits
@@ -48,12 +50,14 @@ class StageRecord:
     splits: int
     solve_seconds: float
     split_seconds: float
+    compounds: int = 0
 
 
 @dataclass
 class Timing:
     solve: float = 0.0
     split: float = 0.0
+    compounds: float = 0.0  # part of ``split``: the compound search
 
 
 @dataclass
@@ -66,11 +70,16 @@ class RLVC:
         >>> rlvc.greedy(presence)   # (N,) actions for (N, F) bool presence rows
 
     Args:
-        n_features: vocabulary size F.
+        n_features: number of features F that presence vectors hold (the vocabulary's words,
+            then the compounds learned so far).
         n_actions: number of discrete actions.
         gamma: discount factor.
         alpha: significance level of the split t-tests.
         min_count: minimum interactions on each side of a split.
+        use_compounds: when a stage finds no significant split, search compound features
+            for the most aliased classes (the database must keep feature occurrences); each
+            compound found becomes feature ``n_features``, which then grows.
+        compound_tolerance: tolerance of new compounds, in units of keypoint scale.
     """
 
     n_features: int
@@ -78,6 +87,9 @@ class RLVC:
     gamma: float
     alpha: float = 0.05
     min_count: int = 10
+    use_compounds: bool = False
+    compound_tolerance: float = 1.0
+    compounds: list[Compound] = field(default_factory=list, init=False)
     tree: ClassTree = field(init=False)
     history: list[StageRecord] = field(default_factory=list, init=False)
     timing: Timing = field(default_factory=Timing, init=False)
@@ -96,6 +108,8 @@ class RLVC:
             raise ValueError(f"gamma must be in [0, 1), got {self.gamma}")
         if not 0 < self.alpha < 1:
             raise ValueError(f"alpha must be in (0, 1), got {self.alpha}")
+        if not self.compound_tolerance > 0:
+            raise ValueError(f"compound_tolerance must be > 0, got {self.compound_tolerance}")
         if self.min_count < 2:
             raise ValueError(
                 f"min_count must be >= 2 (a variance needs two samples), got {self.min_count}"
@@ -181,6 +195,11 @@ class RLVC:
                 self.alpha,
                 self.min_count,
             )
+            if not splits and self.use_compounds:
+                compound_start = time.perf_counter()
+                splits = self._compound_splits(db, s, deltas)
+                rows, features = db.interaction_features()
+                self.timing.compounds += time.perf_counter() - compound_start
             for split in splits:
                 new_class = self.tree.split(split.state, split.feature)
                 # Incremental reclassification: only percepts of the split class can move.
@@ -199,6 +218,7 @@ class RLVC:
                 splits=len(splits),
                 solve_seconds=solved - start,
                 split_seconds=done - solved,
+                compounds=len(self.compounds),
             )
             self.history.append(record)
             bar.set_postfix(classes=record.classes, td=f"{record.mean_abs_td:.2f}")
@@ -207,6 +227,37 @@ class RLVC:
             if not splits:
                 break
         return self
+
+    def _compound_splits(
+        self, db: InteractionDatabase, states: torch.Tensor, deltas: torch.Tensor
+    ) -> list[Split]:
+        """Significant compound splits of the most aliased classes; their compounds join the
+        features (of this learner, its tree and ``db``)."""
+        found = find_compound_splits(
+            db,
+            states,
+            deltas,
+            self.n_classes,
+            self.n_actions,
+            self.alpha,
+            self.min_count,
+            self.compound_tolerance,
+        )
+        new: dict[Compound, int] = {}  # two classes may pick the same compound
+        for split, compound in found:
+            split.feature = new.setdefault(compound, self.n_features + len(new))
+        if new:
+            db.add_compounds(list(new))
+            self.compounds += list(new)
+            self.n_features += len(new)
+            self.tree.widen(self.n_features)
+        return [split for split, _ in found]
+
+    @property
+    def compound_features(self) -> list[int]:
+        """Feature ids of the compounds that the classes test."""
+        first = self.n_features - len(self.compounds)
+        return [f for f in self.tree.selected_features if f >= first]
 
     def values(self) -> torch.Tensor:
         """(S,) V = max_a Q of every class."""
@@ -224,7 +275,10 @@ class RLVC:
                 "gamma": self.gamma,
                 "alpha": self.alpha,
                 "min_count": self.min_count,
+                "use_compounds": self.use_compounds,
+                "compound_tolerance": self.compound_tolerance,
             },
+            "compounds": [c.as_list() for c in self.compounds],
             "tree": self.tree.state_dict(),
             "q": self.q,
             "history": [asdict(r) for r in self.history],
@@ -234,6 +288,7 @@ class RLVC:
     def from_state_dict(cls, state: dict) -> RLVC:
         rlvc = cls(**state["config"])
         rlvc.tree = ClassTree.from_state_dict(state["tree"])
+        rlvc.compounds = [Compound.from_list(c) for c in state["compounds"]]
         rlvc._q = state["q"]
         rlvc.history = [StageRecord(**r) for r in state["history"]]
         return rlvc

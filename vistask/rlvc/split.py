@@ -30,7 +30,7 @@ class Split:
     p_value: float
 
 
-def _sse(n: torch.Tensor, s1: torch.Tensor, s2: torch.Tensor) -> torch.Tensor:
+def sse(n: torch.Tensor, s1: torch.Tensor, s2: torch.Tensor) -> torch.Tensor:
     """Sum of squared deviations from counts, sums, sums of squares (0 for empty groups)."""
     return (s2 - s1 * s1 / n.clamp_min(1)).clamp_min(0)
 
@@ -101,8 +101,8 @@ def find_splits(
     n_gc, s1_gc, s2_gc = n_g[cg], s1_g[cg], s2_g[cg]
 
     n_nf, s1_nf, s2_nf = n_gc - n_f, s1_gc - s1_f, s2_gc - s2_f
-    sse_f, sse_nf = _sse(n_f, s1_f, s2_f), _sse(n_nf, s1_nf, s2_nf)
-    reduction = _sse(n_gc, s1_gc, s2_gc) - sse_f - sse_nf
+    sse_f, sse_nf = sse(n_f, s1_f, s2_f), sse(n_nf, s1_nf, s2_nf)
+    reduction = sse(n_gc, s1_gc, s2_gc) - sse_f - sse_nf
     valid = reduction > 0
     state_of, action_of = active // n_actions, active % n_actions
 

@@ -7,12 +7,13 @@ stay stable across stages (and Q values of untouched classes keep their meaning)
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 import torch
 
-from vistask.features import VisualFeatureExtractor, check_image
+from vistask.features import Compound, VisualFeatureExtractor, check_image
 
 
 class ClassTree:
@@ -55,6 +56,12 @@ class ClassTree:
             if f >= 0:
                 depth[self.absent[node]] = depth[self.present[node]] = depth[node] + 1
         return max(depth.values())
+
+    def widen(self, n_features: int) -> None:
+        """Presence vectors hold ``n_features`` features from now on (compounds were added)."""
+        if n_features < self.n_features:
+            raise ValueError(f"cannot narrow the tree from {self.n_features} to {n_features}")
+        self.n_features = int(n_features)
 
     def split(self, class_id: int, feature: int) -> int:
         """Split a class on a feature; returns the id of the new ("present") class."""
@@ -127,29 +134,36 @@ class ClassTree:
 
 
 class VisualClassifier:
-    """Image -> visual class: a feature extractor and a class tree learned on its vocabulary.
+    """Image -> visual class: a feature extractor, the compounds learned on its vocabulary, and
+    a class tree over both.
 
     Example:
-        >>> classifier = VisualClassifier(extractor, tree)
+        >>> classifier = VisualClassifier(extractor, tree, compounds)
         >>> classifier(image)          # int class of one (H, W, 3) uint8 image
         >>> classifier.classify(images)  # (N,) long
         >>> classifier.save("classes.pt"); VisualClassifier.load("classes.pt")
     """
 
-    def __init__(self, extractor: VisualFeatureExtractor, tree: ClassTree) -> None:
-        if tree.n_features != extractor.n_features:
+    def __init__(
+        self,
+        extractor: VisualFeatureExtractor,
+        tree: ClassTree,
+        compounds: Sequence[Compound] = (),
+    ) -> None:
+        if tree.n_features != extractor.n_features + len(compounds):
             raise ValueError(
                 f"tree tests {tree.n_features} features but the vocabulary has "
-                f"{extractor.n_features}: they were not learned together"
+                f"{extractor.n_features} and {len(compounds)} compounds: they were not learned "
+                "together"
             )
-        self.extractor, self.tree = extractor, tree
+        self.extractor, self.tree, self.compounds = extractor, tree, list(compounds)
 
     @property
     def n_classes(self) -> int:
         return self.tree.n_classes
 
     def classify(self, images: list[np.ndarray]) -> torch.Tensor:
-        return self.tree.classify(self.extractor.presence(images))
+        return self.tree.classify(self.extractor.presence(images, self.compounds))
 
     def __call__(self, image: np.ndarray) -> int:
         return int(self.classify([check_image(image)])[0])
@@ -158,6 +172,7 @@ class VisualClassifier:
         return {
             "extractor": self.extractor.state_dict(),
             "fingerprint": self.extractor.fingerprint,
+            "compounds": [c.as_list() for c in self.compounds],
             "tree": self.tree.state_dict(),
         }
 
@@ -174,7 +189,8 @@ class VisualClassifier:
                 f"vocabulary mismatch: the class tree was learned on vocabulary "
                 f"{state['fingerprint']}, got {extractor.fingerprint}"
             )
-        return cls(extractor, ClassTree.from_state_dict(state["tree"]))
+        compounds = [Compound.from_list(c) for c in state["compounds"]]
+        return cls(extractor, ClassTree.from_state_dict(state["tree"]), compounds)
 
     def save(self, path: str | Path) -> None:
         torch.save(self.state_dict(), path)

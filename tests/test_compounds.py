@@ -1,0 +1,125 @@
+"""Compound features: presence against brute force, a split only a compound can make, saving."""
+
+import numpy as np
+import pytest
+import torch
+
+from vistask.features import Compound, Occurrences, add_compound_occurrences, propose
+from vistask.features.compounds import match, presence_of_candidates
+from vistask.rlvc import RLVC, InteractionDatabase
+
+
+def random_occurrences(rng, n_images=40, n_features=5, per_image=8) -> Occurrences:
+    sizes = rng.integers(0, per_image + 1, n_images)
+    n = int(sizes.sum())
+    return Occurrences(
+        np.repeat(np.arange(n_images), sizes),
+        rng.integers(0, n_features, n),
+        rng.uniform(0, 40, (n, 2)),
+        rng.uniform(1, 4, n),
+        n_images,
+    )
+
+
+def brute_force_presence(occ: Occurrences, c: Compound) -> np.ndarray:
+    present = np.zeros(occ.n_images, bool)
+    for i in range(len(occ)):
+        for j in range(len(occ)):
+            if i == j or occ.image[i] != occ.image[j]:
+                continue
+            if occ.feature[i] != c.first or occ.feature[j] != c.second:
+                continue
+            d = (occ.xy[j] - occ.xy[i]) / occ.scale[i] - np.asarray(c.offset)
+            present[occ.image[i]] |= float((d * d).sum()) <= c.tolerance**2
+    return present
+
+
+def test_compound_presence_equals_brute_force_on_random_keypoints():
+    rng = np.random.default_rng(0)
+    for trial in range(20):
+        occ = random_occurrences(rng)
+        compounds = [
+            Compound(int(a), int(b), tuple(rng.uniform(-8, 8, 2)), float(rng.uniform(1, 6)))
+            for a, b in rng.integers(0, 5, (6, 2))
+        ]
+        got = presence_of_candidates(occ, compounds).numpy()
+        for k, c in enumerate(compounds):
+            assert np.array_equal(got[:, k], brute_force_presence(occ, c)), (trial, c)
+        with_compounds = add_compound_occurrences(occ, compounds, first_id=5)
+        assert np.array_equal(with_compounds.presence(11).numpy()[:, 5:], got)
+
+
+def test_a_compound_of_a_compound_occurs_at_its_parts_midpoint():
+    occ = Occurrences([0, 0, 0], [0, 1, 2], [[0, 0], [4, 0], [2, 6]], [2, 2, 2], 1)
+    pair = Compound(0, 1, (2.0, 0.0), 0.1)  # 1 two scales right of 0: at (2, 0)
+    triple = Compound(3, 2, (0.0, 3.0), 0.1)  # 2 three scales below the pair
+    both = add_compound_occurrences(occ, [pair, triple], first_id=3)
+    assert both.presence(5)[0].tolist() == [True] * 5
+    i, _ = match(both, triple)
+    assert both.xy[i].tolist() == [[2.0, 0.0]]
+    moved = add_compound_occurrences(
+        Occurrences([0, 0, 0], [0, 1, 2], [[0, 0], [4, 0], [2, 9]], [2, 2, 2], 1),
+        [pair, triple],
+        first_id=3,
+    )
+    assert moved.presence(5)[0].tolist() == [True, True, True, True, False]
+
+
+def relation_database(n=600, seed=0) -> InteractionDatabase:
+    """One-step episodes whose reward is 1 when feature 1 lies 5 scales right of feature 0,
+    and 0 when it lies anywhere else; every percept shows features 0-5 once."""
+    rng = np.random.default_rng(seed)
+    related = rng.random(n) < 0.5
+    xy = rng.uniform(0, 100, (n, 6, 2))
+    xy[related, 1] = xy[related, 0] + [10.0, 0.0]  # scale 2: 5 scales right
+    near = ~related & (np.linalg.norm(xy[:, 1] - xy[:, 0] - [10.0, 0.0], axis=1) < 8)
+    xy[near, 1] = xy[near, 0] - [30.0, 30.0]  # unrelated percepts: far from the relation
+    occ = Occurrences(
+        np.repeat(np.arange(n + 1), [6] * n + [0]),
+        np.tile(np.arange(6), n),
+        xy.reshape(-1, 2),
+        np.full(6 * n, 2.0),
+        n + 1,  # the last percept is the terminal view
+    )
+    return InteractionDatabase(
+        presence=occ.presence(6),
+        obs=torch.arange(n),
+        actions=torch.zeros(n, dtype=torch.long),
+        rewards=torch.from_numpy(related.astype(float)),
+        next_obs=torch.full((n,), n),
+        terminal=torch.ones(n, dtype=torch.bool),
+        occurrences=occ,
+    )
+
+
+def test_only_a_compound_splits_a_reward_that_depends_on_a_relation():
+    db = relation_database()
+    plain = RLVC(db.n_features, 1, gamma=0.9).learn(db, progress=False)
+    assert plain.n_classes == 1  # every feature is in every percept: nothing to split on
+    rlvc = RLVC(db.n_features, 1, gamma=0.9, use_compounds=True).learn(db, progress=False)
+    assert len(rlvc.compounds) >= 1 and rlvc.compound_features == [6]
+    c = rlvc.compounds[0]
+    assert {c.first, c.second} == {0, 1}
+    assert np.allclose(np.abs(c.offset), [5.0, 0.0], atol=0.5)
+    classes = rlvc.tree.classify(db.presence)[db.obs]
+    values = rlvc.values()[classes].numpy()
+    assert np.allclose(values, db.rewards.numpy(), atol=1e-9)  # each percept's true value
+
+
+def test_propose_keeps_only_relations_that_could_split():
+    db = relation_database(n=200)
+    candidates = propose(db.occurrences, tolerance=1.0, min_count=10)
+    assert candidates, "the planted relation recurs in about 100 percepts"
+    assert any({c.first, c.second} == {0, 1} for c in candidates)
+    with pytest.raises(ValueError, match="tolerance"):
+        propose(db.occurrences, tolerance=0)
+
+
+def test_rlvc_with_compounds_round_trips(tmp_path):
+    db = relation_database()
+    rlvc = RLVC(db.n_features, 1, gamma=0.9, use_compounds=True).learn(db, progress=False)
+    rlvc.save(tmp_path / "rlvc.pt")
+    loaded = RLVC.load(tmp_path / "rlvc.pt")
+    assert loaded.compounds == rlvc.compounds
+    assert torch.equal(loaded.tree.classify(db.presence), rlvc.tree.classify(db.presence))
+    assert torch.equal(loaded.q, rlvc.q)

@@ -1,0 +1,111 @@
+"""The envs that have an oracle, seen alike by the experiments: fixed evaluation starts, the
+oracle's return from them, a batched evaluation of any policy, and the true-state cells that the
+privileged tabular baseline learns on.
+
+Example:
+    >>> task = task_for("vistask/VisualMountainCar-v0")
+    >>> task.evaluate(lambda percepts, states: agent.predict(percepts)[0]).mean / task.oracle_return
+"""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+
+import vistask.envs  # noqa: F401  (registers the environments)
+from vistask.envs import MazeOracle, VisualMazeEnv, evaluate_policy, start_positions
+from vistask.envs.car_oracle import CarOracle, evaluate_car_policy, start_states
+from vistask.envs.maze_oracle import EvaluationResult, Policy, grid_cells
+from vistask.envs.mountain_car import VisualMountainCarEnv
+
+
+class MazeTask:
+    """The visual maze: starts are free positions, the true state is the position."""
+
+    def __init__(self, env: VisualMazeEnv, eval_starts: int = 100) -> None:
+        self.env = env
+        self.starts = start_positions(env.geometry, eval_starts)
+        self.oracle = MazeOracle.solve(env.geometry)
+        self.oracle_return = self.evaluate(self.oracle.as_policy()).mean
+
+    def evaluate(self, policy: Policy) -> EvaluationResult:
+        """Discounted returns of a batched ``policy(percepts, positions)`` from the starts."""
+        return evaluate_policy(self.env, policy, self.starts)
+
+    def cells(self, states: np.ndarray, grid: int) -> np.ndarray:
+        """(N,) cell of each true position (N, 2) on a ``grid`` x ``grid`` grid."""
+        return grid_cells(states, self.env.geometry.size, grid)
+
+    @staticmethod
+    def true_state(env: gym.Env) -> np.ndarray:
+        return env.unwrapped.position
+
+
+class CarTask:
+    """The visual mountain car: starts are (position, velocity) pairs from which the goal can
+    be reached, the true state is (position, velocity)."""
+
+    def __init__(self, env: VisualMountainCarEnv, eval_starts: int = 100) -> None:
+        self.env = env
+        self.oracle = CarOracle.solve()
+        self.starts = start_states(self.oracle, eval_starts)
+        self.oracle_return = self.evaluate(self.oracle.as_policy()).mean
+
+    def evaluate(self, policy: Policy) -> EvaluationResult:
+        """Discounted returns of a batched ``policy(percepts, states)`` from the starts."""
+        return evaluate_car_policy(self.env, policy, self.starts)
+
+    def cells(self, states: np.ndarray, grid: int) -> np.ndarray:
+        """(N,) cell of each true (position, velocity) on a ``grid`` x ``grid`` grid."""
+        states = np.asarray(states, dtype=float).reshape(-1, 2)
+        unit = (states - [-1.0, -3.0]) / [2.0, 6.0]
+        index = np.clip((unit * grid).astype(int), 0, grid - 1)
+        return index[:, 1] * grid + index[:, 0]
+
+    @staticmethod
+    def true_state(env: gym.Env) -> np.ndarray:
+        return env.unwrapped.state
+
+
+Task = MazeTask | CarTask
+
+
+def task_for(env_id: str, env_kwargs: dict | None = None, eval_starts: int = 100) -> Task | None:
+    """The task of an env with an oracle (None for any other env)."""
+    env = gym.make(env_id, **(env_kwargs or {})).unwrapped
+    if isinstance(env, VisualMazeEnv):
+        return MazeTask(env, eval_starts)
+    if isinstance(env, VisualMountainCarEnv):
+        return CarTask(env, eval_starts)
+    return None
+
+
+class GridCells(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
+    """Image observation -> ``Discrete(grid**2)`` cell of the *true* state.
+
+    The privileged-state baseline of the paper's comparisons: tabular Q-learning on this
+    wrapper sees the true state (the maze's position, the car's position and velocity),
+    never the percept.
+
+    Example:
+        >>> env = GridCells(gym.make("vistask/VisualMountainCar-v0"), task, grid=14)
+
+    Args:
+        env: the task's env (a ``gym.make`` of it).
+        task: its ``Task``.
+        grid: cells per dimension.
+    """
+
+    def __init__(self, env: gym.Env, task: Task, grid: int = 10) -> None:
+        if type(env.unwrapped) is not type(task.env):
+            raise TypeError(f"GridCells of a {type(task.env).__name__} task got another env")
+        if grid < 1:
+            raise ValueError(f"grid must be >= 1, got {grid}")
+        gym.utils.RecordConstructorArgs.__init__(self, task=task, grid=grid)
+        gym.ObservationWrapper.__init__(self, env)
+        self.task, self.grid = task, grid
+        self.observation_space = spaces.Discrete(grid * grid)
+
+    def observation(self, observation: np.ndarray) -> int:
+        return int(self.task.cells(self.task.true_state(self.env)[None], self.grid)[0])
