@@ -11,10 +11,11 @@ from stable_baselines3.common.callbacks import CheckpointCallback, EvalCallback
 
 from vistask.agents import RLVCAgent, TabularQAgent
 from vistask.envs import MazeOracle, VisualMazeEnv, evaluate_policy, start_positions
-from vistask.experiments.tasks import MazeTask
+from vistask.experiments.tasks import MazeTask, task_for
 from vistask.experiments.train_rlvc import agent_policy, train_rlvc, true_grid_policy
-from vistask.features import VisualFeatureExtractor
-from vistask.rlvc import VisualClassifier, collect
+from vistask.features import VisualFeatureExtractor, propose
+from vistask.features.compounds import presence_of_candidates
+from vistask.rlvc import ClassTree, VisualClassifier, collect
 from vistask.wrappers import VisualClasses, VisualFeatures
 
 SMALL = dict(
@@ -277,3 +278,41 @@ def test_train_rlvc_writes_a_summary_that_its_saved_agent_reproduces(tmp_path):
     result = evaluate_policy(env, agent_policy(agent), starts)
     assert result.mean == pytest.approx(summary["rlvc_return"])
     assert summary["starts_never_exiting"] == int((result.returns == 0).sum())
+
+
+def test_a_classifier_with_compounds_round_trips_and_tests_them(small_agent, tmp_path):
+    maze = VisualMazeEnv(**SMALL)
+    images = [maze.percept_at(p) for p in start_positions(maze.geometry, 60)]
+    extractor = small_agent.extractor
+    words = extractor.occurrences(images)
+    compound = propose(words, tolerances=(1.0,), min_count=5)[0]  # a relation seen in 5+ percepts
+    tree = ClassTree(extractor.n_features + 1)
+    tree.split(0, extractor.n_features)  # the compound present -> class 1
+    classifier = VisualClassifier(extractor, tree, [compound])
+    expected = presence_of_candidates(words, [compound])[:, 0].long()
+    assert 0 < int(expected.sum()) < len(images)
+    assert torch.equal(classifier.classify(images), expected)
+    classifier.save(tmp_path / "classes.pt")
+    loaded = VisualClassifier.load(tmp_path / "classes.pt")
+    assert loaded.compounds == [compound]
+    assert torch.equal(loaded.classify(images), expected)
+    with pytest.raises(ValueError, match="1 compounds"):
+        VisualClassifier(extractor, ClassTree(extractor.n_features + 2), [compound])
+
+
+def test_train_rlvc_on_the_car_scores_against_its_oracle_and_draws_it(tmp_path):
+    env_id = "vistask/VisualMountainCar-v0"
+    summary = train_rlvc(env_id, interactions=3000, out=tmp_path, progress=False)
+    for key in ("stages", "classes", "selected_features", "compound_features", "seconds"):
+        assert key in summary
+    assert summary["interactions"] == 3000
+    assert summary["return_ratio"] == pytest.approx(
+        summary["rlvc_return"] / summary["oracle_return"]
+    )
+    assert summary["oracle_return"] > 0.5  # the oracle reaches the top from every start
+    assert summary["velocity_r2_best_word"] < 0.2  # no single word reads the gauge
+    for picture in ("road_and_gauge.png", "car_policy.png", "car_classes.png"):
+        assert (tmp_path / picture).stat().st_size > 0
+    agent = RLVCAgent.load(tmp_path / "rlvc_agent.pt", gym.make(env_id))
+    task = task_for(env_id)
+    assert task.evaluate(agent_policy(agent)).mean == pytest.approx(summary["rlvc_return"])

@@ -4,7 +4,14 @@ import numpy as np
 import pytest
 import torch
 
-from vistask.features import Compound, Occurrences, add_compound_occurrences, propose
+from vistask.experiments.train_rlvc import feature_r2
+from vistask.features import (
+    Compound,
+    Occurrences,
+    VisualFeatureExtractor,
+    add_compound_occurrences,
+    propose,
+)
 from vistask.features.compounds import match, presence_of_candidates
 from vistask.rlvc import RLVC, InteractionDatabase
 
@@ -108,11 +115,11 @@ def test_only_a_compound_splits_a_reward_that_depends_on_a_relation():
 
 def test_propose_keeps_only_relations_that_could_split():
     db = relation_database(n=200)
-    candidates = propose(db.occurrences, tolerance=1.0, min_count=10)
+    candidates = propose(db.occurrences, tolerances=(1.0,), min_count=10)
     assert candidates, "the planted relation recurs in about 100 percepts"
     assert any({c.first, c.second} == {0, 1} for c in candidates)
-    with pytest.raises(ValueError, match="tolerance"):
-        propose(db.occurrences, tolerance=0)
+    with pytest.raises(ValueError, match="tolerances"):
+        propose(db.occurrences, tolerances=(0.0,))
 
 
 def test_rlvc_with_compounds_round_trips(tmp_path):
@@ -123,3 +130,25 @@ def test_rlvc_with_compounds_round_trips(tmp_path):
     assert loaded.compounds == rlvc.compounds
     assert torch.equal(loaded.tree.classify(db.presence), rlvc.tree.classify(db.presence))
     assert torch.equal(loaded.q, rlvc.q)
+
+
+def test_feature_r2_is_the_squared_correlation_of_presence_and_values():
+    rng = np.random.default_rng(3)
+    values = rng.normal(size=500)
+    presence = torch.from_numpy(rng.random((500, 7)) < 0.3)
+    presence[:, 6] = torch.from_numpy(values > 0.5)  # reads the values well
+    got = feature_r2(presence, values).numpy()
+    brute = [np.corrcoef(presence[:, f].numpy(), values)[0, 1] ** 2 for f in range(7)]
+    assert np.allclose(got, brute)
+    assert got.argmax() == 6
+
+
+def test_a_words_compound_part_is_its_coarse_group(tmp_path):
+    rng = np.random.default_rng(0)
+    images = [rng.integers(0, 255, (64, 64, 3), dtype=np.uint8) for _ in range(30)]
+    extractor = VisualFeatureExtractor.fit(images, n_words=64, groups=4)
+    occ = extractor.occurrences(images)
+    assert len(occ) > 0
+    assert np.array_equal(occ.part, extractor.groups.group_of.numpy()[occ.feature])
+    flat = VisualFeatureExtractor.fit(images, n_words=64, groups=0).occurrences(images)
+    assert np.array_equal(flat.part, flat.feature)

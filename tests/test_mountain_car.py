@@ -2,6 +2,7 @@
 
 import math
 
+import cv2
 import gymnasium as gym
 import numpy as np
 import pytest
@@ -18,7 +19,7 @@ from vistask.envs import (
 )
 from vistask.envs.car_oracle import rollout
 from vistask.envs.car_plots import percepts_at, plot_car_policy, plot_road, state_grid
-from vistask.envs.mountain_car import acceleration, outcome
+from vistask.envs.mountain_car import NEEDLE_STOP, acceleration, outcome
 from vistask.rlvc.database import collect
 
 GAMMA = 0.95
@@ -147,16 +148,53 @@ def test_percepts_differ_in_speed_on_the_gauge_only_and_in_position_on_the_road_
     assert (a != b).any()
 
 
-def test_needle_never_covers_ticks_or_numerals(env):
+def test_needle_never_covers_the_numerals(env):
     view = env.percepts
     g = view.gauge_size
     yy, xx = np.mgrid[:g, :g] + 0.5
-    ring = np.hypot(xx - view.centre[0], yy - view.centre[1]) > 0.22 * g  # numerals and ticks
+    ring = np.hypot(xx - view.centre[0], yy - view.centre[1]) > 0.22 * g  # the numerals
     numeral_ink = (view.dial.min(axis=2) < 128) & ring
     assert numeral_ink.sum() > 100  # the ring holds the numerals' ink
     for s in np.linspace(-3, 3, 121):
         gauge = env.percept_at((0.0, s))[:, view.road_width :]
         np.testing.assert_array_equal(gauge[ring], view.dial[ring])
+
+
+def test_numerals_lie_outside_the_sift_windows_of_the_tip_and_the_hub(env):
+    # A SIFT descriptor sees pixels up to ~10.6 sigma (= 5.3 keypoint sizes) from its
+    # keypoint: numerals there would change the tip's and the hub's words with the speed.
+    view = env.percepts
+    g = view.gauge_size
+    yy, xx = np.mgrid[:g, :g] + 0.5
+    radius = np.hypot(xx - view.centre[0], yy - view.centre[1])
+    grey = cv2.cvtColor(np.ascontiguousarray(view.dial), cv2.COLOR_RGB2GRAY)
+    ink = (grey < 200) & (radius < view.dial_radius - 3)
+    nearest_ink = radius[ink].min()
+    sift = cv2.SIFT_create(contrastThreshold=0.02)
+    reach = 3 * 2.5 * math.sqrt(2) / 2  # window radius per keypoint size (size = 2 sigma)
+    found = 0
+    for s in np.linspace(-3, 3, 25):
+        gauge = np.ascontiguousarray(env.percept_at((0.0, s))[:, view.road_width :])
+        keypoints = sift.detect(cv2.cvtColor(gauge, cv2.COLOR_RGB2GRAY), None)
+        for point, gap in (
+            (view.tip(s), nearest_ink - view.tip_radius),
+            (view.centre, nearest_ink),
+        ):
+            sizes = [k.size for k in keypoints if math.dist(k.pt, point) < 1.5]
+            found += bool(sizes)
+            assert all(reach * size < gap for size in sizes), (s, point, sizes, gap)
+    assert found >= 48  # tip and hub, nearly always
+
+
+def test_needle_goes_on_past_the_numerals_to_its_stops(env):
+    view = env.percepts
+    assert view.angle(-3.0) == pytest.approx(math.radians(210))
+    assert view.angle(3.0) == pytest.approx(math.radians(-30))
+    assert view.angle(-3.5) > view.angle(-3.0) and view.angle(3.5) < view.angle(3.0)
+    assert view.angle(-9.0) == view.angle(-NEEDLE_STOP) < math.radians(270)
+    assert view.angle(9.0) == view.angle(NEEDLE_STOP) > math.radians(-90)
+    # Over the speed limit the gauges differ, not one pinned needle for all.
+    assert (view(np.array([0.0, -3.4])) != view(np.array([0.0, -3.0]))).any()
 
 
 def test_render_shows_the_whole_road_and_the_gauge():

@@ -3,10 +3,18 @@
 A local feature tells *what* is in a percept, not *where* it is relative to something else: the
 velocity shown by a gauge's needle is in the relation between the needle's tip and the dial's
 numerals, not in either. A compound ``(first, second, offset, tolerance)`` is present in an
-image when some occurrence of ``second`` lies at ``offset`` from some occurrence of ``first``,
-within ``tolerance``; both are in units of the first occurrence's scale, so the relation holds
-at any image scale. A compound occurs at the midpoint of the matching pair, with the mean of
-their scales, so compounds can be paired again (a hierarchy of compounds).
+image when some occurrence of part ``second`` lies at ``offset`` from some occurrence of part
+``first``, within ``tolerance``; both are in units of the first occurrence's scale, so the
+relation holds at any image scale. A compound occurs at the midpoint of the matching pair, with
+the mean of their scales, so compounds can be paired again (a hierarchy of compounds).
+
+The parts of a compound are coarser than words. A fine vocabulary (8192 words) spreads the
+keypoints of one small object over hundreds of words (the car gauge's needle tip: 628 words in
+2000 percepts, but 5 coarse groups hold 90% of it), so that a relation between two words recurs
+too rarely to be found; the relation itself, tight in position, is what makes a compound
+selective. A word's part is its coarse group in the vocabulary tree (the word itself in a flat
+vocabulary); a compound's part is its own feature id (ids above every group's, so both share
+one space).
 
 Occurrences of all features of a set of images are one flat table (``Occurrences``), sorted by
 image; pairs within an image are enumerated with a sort and a ``searchsorted``, never a loop
@@ -14,12 +22,13 @@ over images.
 
 Example:
     >>> occ = extractor.occurrences(images)               # words, where they occur
-    >>> candidates = propose(occ, tolerance=1.0, min_count=10)
+    >>> candidates = propose(occ, tolerances=(1.0, 2.0), min_count=10)
     >>> occ = add_compound_occurrences(occ, candidates[:1], first_id=extractor.n_features)
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -32,14 +41,16 @@ MAX_REACH = 256
 
 @dataclass
 class Occurrences:
-    """Where features occur in ``n_images`` images: occurrence k is feature ``feature[k]`` at
-    pixel ``xy[k]`` with keypoint scale ``scale[k]`` in image ``image[k]``; sorted by image.
+    """Where features occur in ``n_images`` images: occurrence k is feature ``feature[k]`` (of
+    compound part ``part[k]``) at pixel ``xy[k]`` with keypoint scale ``scale[k]`` in image
+    ``image[k]``; sorted by image.
 
-    20 bytes per occurrence: 30,000 percepts of 24 keypoints take 14 MB.
+    24 bytes per occurrence: 30,000 percepts of 24 keypoints take 17 MB.
 
     Attributes:
         image: (P,) int32. feature: (P,) int32. xy: (P, 2) float32. scale: (P,) float32.
         n_images: number of images (some may have no occurrence).
+        part: (P,) int32 compound part of each occurrence (default: its feature).
     """
 
     image: np.ndarray
@@ -47,15 +58,17 @@ class Occurrences:
     xy: np.ndarray
     scale: np.ndarray
     n_images: int
+    part: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         self.image = np.asarray(self.image, np.int32)
         self.feature = np.asarray(self.feature, np.int32)
+        self.part = np.asarray(self.feature if self.part is None else self.part, np.int32)
         self.xy = np.asarray(self.xy, np.float32).reshape(-1, 2)
         self.scale = np.asarray(self.scale, np.float32)
         n = len(self.image)
-        if not (len(self.feature) == len(self.xy) == len(self.scale) == n):
-            raise ValueError("image, feature, xy and scale need one entry per occurrence")
+        if not (len(self.feature) == len(self.xy) == len(self.scale) == len(self.part) == n):
+            raise ValueError("image, feature, xy, scale and part need one entry per occurrence")
         if n and (np.any(np.diff(self.image) < 0) or self.image[-1] >= self.n_images):
             raise ValueError(f"image ids must be sorted and below n_images={self.n_images}")
 
@@ -79,12 +92,18 @@ class Occurrences:
             np.concatenate([np.zeros((0, 2), np.float32)] + [p.xy for p in parts]),
             np.concatenate([np.zeros(0, np.float32)] + [p.scale for p in parts]),
             int(offsets[-1]),
+            np.concatenate([np.zeros(0, np.int32)] + [p.part for p in parts]),
         )
 
     def take(self, keep: np.ndarray) -> Occurrences:
         """The occurrences where the (P,) bool ``keep`` holds (same images)."""
         return Occurrences(
-            self.image[keep], self.feature[keep], self.xy[keep], self.scale[keep], self.n_images
+            self.image[keep],
+            self.feature[keep],
+            self.xy[keep],
+            self.scale[keep],
+            self.n_images,
+            self.part[keep],
         )
 
     def select(self, images: np.ndarray) -> Occurrences:
@@ -111,6 +130,7 @@ class Occurrences:
             np.concatenate([self.xy, other.xy])[order],
             np.concatenate([self.scale, other.scale])[order],
             self.n_images,
+            np.concatenate([self.part, other.part])[order],
         )
 
     def presence(self, n_features: int) -> torch.Tensor:
@@ -124,8 +144,8 @@ class Occurrences:
 
 @dataclass(frozen=True)
 class Compound:
-    """Feature ``second`` at ``offset`` (dx, dy) from feature ``first``, within ``tolerance``;
-    offset and tolerance in units of the ``first`` occurrence's scale."""
+    """Part ``second`` at ``offset`` (dx, dy) from part ``first``, within ``tolerance``; offset
+    and tolerance in units of the ``first`` occurrence's scale (parts: see the module)."""
 
     first: int
     second: int
@@ -161,8 +181,8 @@ def _displacement(occ: Occurrences, i: np.ndarray, j: np.ndarray) -> np.ndarray:
 
 def match(occ: Occurrences, compound: Compound) -> tuple[np.ndarray, np.ndarray]:
     """Pairs of occurrences that realise ``compound``: (i (Q,), j (Q,)) indices into ``occ``."""
-    first = np.flatnonzero(occ.feature == compound.first)
-    second = np.flatnonzero(occ.feature == compound.second)
+    first = np.flatnonzero(occ.part == compound.first)
+    second = np.flatnonzero(occ.part == compound.second)
     i, j = pairs(occ, first, second)
     error = _displacement(occ, i, j) - np.asarray(compound.offset, np.float32)
     near = (error * error).sum(1) <= compound.tolerance**2
@@ -170,8 +190,8 @@ def match(occ: Occurrences, compound: Compound) -> tuple[np.ndarray, np.ndarray]
 
 
 def compound_occurrences(occ: Occurrences, compound: Compound, feature: int) -> Occurrences:
-    """Occurrences of ``compound`` (as feature id ``feature``): at the midpoint of each matching
-    pair, with the mean of the two scales."""
+    """Occurrences of ``compound`` (as feature and part ``feature``): at the midpoint of each
+    matching pair, with the mean of the two scales."""
     i, j = match(occ, compound)
     return Occurrences(
         occ.image[i],
@@ -194,54 +214,56 @@ def add_compound_occurrences(
 
 def propose(
     occ: Occurrences,
-    tolerance: float = 1.0,
+    tolerances: Sequence[float] = (1.0,),
     min_count: int = 10,
     max_candidates: int = 512,
 ) -> list[Compound]:
-    """Candidate compounds: pairs of features that recur in a stable relation in ``occ``.
+    """Candidate compounds: pairs of parts that recur in a stable relation in ``occ``.
 
-    Every ordered pair of occurrences within an image is binned by (first feature, second
-    feature, displacement in units of the first's scale, cut into cells of ``tolerance``).
+    Every ordered pair of occurrences within an image is binned by (first part, second
+    part, displacement in units of the first's scale, cut into cells of a tolerance).
     A bin seen in at least ``min_count`` images, and not in all but fewer than ``min_count``
     of them (it could not split those images), is a candidate, with the mean displacement of
-    its pairs as offset; the ``max_candidates`` most frequent are returned, most frequent first.
+    its pairs as offset; per tolerance, the ``max_candidates`` most frequent are returned,
+    most frequent first. Wider tolerances give compounds that cover more images (a wider band
+    of needle angles on a gauge, say).
     """
-    if tolerance <= 0 or min_count < 1 or max_candidates < 1:
+    if min(tolerances, default=0) <= 0 or min_count < 1 or max_candidates < 1:
         raise ValueError(
-            f"need tolerance > 0, min_count >= 1 and max_candidates >= 1, got {tolerance}, "
+            f"need tolerances > 0, min_count >= 1 and max_candidates >= 1, got {tolerances}, "
             f"{min_count}, {max_candidates}"
         )
     everything = np.arange(len(occ))
     i, j = pairs(occ, everything, everything)
     d = _displacement(occ, i, j)
-    cell = np.floor(d / tolerance + 0.5).astype(np.int64)
-    reach = MAX_REACH / tolerance
-    near = (np.abs(cell) < reach).all(1)
-    i, j, d, cell = i[near], j[near], d[near], cell[near]
-    span = 2 * int(np.ceil(reach)) + 1
-    n_features = int(occ.feature.max(initial=0)) + 1
-    key = occ.feature[i].astype(np.int64) * n_features + occ.feature[j]
-    key = (key * span + cell[:, 0] + span // 2) * span + cell[:, 1] + span // 2
-    # Distinct images per bin: sort by (bin, image) and count the changes of image.
-    image = occ.image[i]
-    order = np.lexsort((image, key))
-    key, image, d = key[order], image[order], d[order]
-    new_image = np.ones(len(key), bool)
-    new_image[1:] = (key[1:] != key[:-1]) | (image[1:] != image[:-1])
-    bins, start, size = np.unique(key, return_index=True, return_counts=True)
-    images = (
-        np.add.reduceat(new_image.astype(np.int64), start) if len(bins) else np.zeros(0, np.int64)
-    )
-    ok = (images >= min_count) & (images <= occ.n_images - min_count)
-    ranked = np.flatnonzero(ok)[np.argsort(-images[ok], kind="stable")][:max_candidates]
-    if len(ranked) == 0:
-        return []
-    offsets = np.add.reduceat(d, start, axis=0)[ranked] / size[ranked, None]
-    pair = bins[ranked] // (span * span)
-    return [
-        Compound(int(p // n_features), int(p % n_features), (float(x), float(y)), tolerance)
-        for p, (x, y) in zip(pair, offsets, strict=True)
-    ]
+    n_parts = int(occ.part.max(initial=0)) + 1
+    pair_key = occ.part[i].astype(np.int64) * n_parts + occ.part[j]
+    candidates = []
+    for tolerance in tolerances:
+        cell = np.floor(d / tolerance + 0.5).astype(np.int64)
+        reach = MAX_REACH / tolerance
+        near = (np.abs(cell) < reach).all(1)
+        span = 2 * int(np.ceil(reach)) + 1
+        key = (pair_key[near] * span + cell[near, 0] + span // 2) * span + cell[near, 1] + span // 2
+        # Distinct images per bin: sort by (bin, image) and count the changes of image.
+        image = occ.image[i[near]]
+        order = np.lexsort((image, key))
+        key, image, dn = key[order], image[order], d[near][order]
+        new_image = np.ones(len(key), bool)
+        new_image[1:] = (key[1:] != key[:-1]) | (image[1:] != image[:-1])
+        bins, start, size = np.unique(key, return_index=True, return_counts=True)
+        if len(bins) == 0:
+            continue
+        images = np.add.reduceat(new_image.astype(np.int64), start)
+        ok = (images >= min_count) & (images <= occ.n_images - min_count)
+        ranked = np.flatnonzero(ok)[np.argsort(-images[ok], kind="stable")][:max_candidates]
+        offsets = np.add.reduceat(dn, start, axis=0)[ranked] / size[ranked, None]
+        pair = bins[ranked] // (span * span)
+        candidates += [
+            Compound(int(p // n_parts), int(p % n_parts), (float(x), float(y)), float(tolerance))
+            for p, (x, y) in zip(pair, offsets, strict=True)
+        ]
+    return candidates
 
 
 def presence_of_candidates(occ: Occurrences, candidates: list[Compound]) -> torch.Tensor:
@@ -251,8 +273,8 @@ def presence_of_candidates(occ: Occurrences, candidates: list[Compound]) -> torc
     by_pair: dict[tuple[int, int], list[int]] = {}
     for k, c in enumerate(candidates):
         by_pair.setdefault((c.first, c.second), []).append(k)
-    order = np.argsort(occ.feature, kind="stable")
-    bounds = np.searchsorted(occ.feature[order], np.arange(int(occ.feature.max(initial=0)) + 2))
+    order = np.argsort(occ.part, kind="stable")
+    bounds = np.searchsorted(occ.part[order], np.arange(int(occ.part.max(initial=0)) + 2))
     for (a, b), ks in by_pair.items():
         first, second = np.sort(order[bounds[a] : bounds[a + 1]]), order[bounds[b] : bounds[b + 1]]
         i, j = pairs(occ, first, np.sort(second))

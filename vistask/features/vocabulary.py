@@ -195,6 +195,7 @@ class VisualFeatureExtractor:
         # Every match needs the prototypes' squared norms; they are fixed, so computed once.
         self._centroid_sq = (self.centroids * self.centroids).sum(1)
         self.groups = groups
+        self._group_of = None if groups is None else groups.group_of.cpu().numpy()
         self.max_distance = max_distance
         self.cache_size = cache_size
         self._cache: dict[tuple, tuple] = {}  # image digest -> (words, xy, scale)
@@ -305,16 +306,18 @@ class VisualFeatureExtractor:
         )
         return add_compound_occurrences(words, list(compounds), self.n_features)
 
-    @staticmethod
-    def _table(per_image: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray]]) -> Occurrences:
-        """One ``Occurrences`` table from per-image (words, xy, scale)."""
+    def _table(self, per_image: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray]]) -> Occurrences:
+        """One ``Occurrences`` table from per-image (words, xy, scale); a word's compound
+        part is its coarse group (the word itself in a flat vocabulary)."""
         sizes = [len(words) for words, _, _ in per_image]
+        words = np.concatenate([np.zeros(0, np.int64)] + [w for w, _, _ in per_image])
         return Occurrences(
             np.repeat(np.arange(len(per_image)), sizes),
-            np.concatenate([np.zeros(0, np.int32)] + [w for w, _, _ in per_image]),
+            words,
             np.concatenate([np.zeros((0, 2), np.float32)] + [xy for _, xy, _ in per_image]),
             np.concatenate([np.zeros(0, np.float32)] + [s for _, _, s in per_image]),
             len(per_image),
+            words if self.groups is None else self._group_of[words],
         )
 
     def occurrences(

@@ -12,6 +12,8 @@ best significant candidate of each class becomes a new feature.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 import torch
 
@@ -52,11 +54,13 @@ def find_compound_splits(
     n_actions: int,
     alpha: float = 0.05,
     min_count: int = 10,
-    tolerance: float = 1.0,
-    max_classes: int = 16,
+    tolerances: Sequence[float] = (1.0,),
+    max_classes: int = 8,
     max_candidates: int = 512,
-) -> list[tuple[Split, Compound]]:
-    """The best significant compound split of each of the ``max_classes`` most aliased classes.
+    skip: set[int] | frozenset = frozenset(),
+) -> tuple[list[tuple[Split, Compound]], list[int]]:
+    """The best significant compound split of each of the ``max_classes`` most aliased classes
+    that are not in ``skip`` (classes that a primitive feature splits already).
 
     Args:
         db: database with feature occurrences (``db.occurrences``).
@@ -65,22 +69,25 @@ def find_compound_splits(
         alpha: significance level of the whole search of one class (each of its K candidates
             is tested at alpha / K).
         min_count: as in ``find_splits``.
-        tolerance: compounds' tolerance, in units of their first part's keypoint scale.
+        tolerances: tolerances of the candidates, in units of their first part's keypoint
+            scale: a compound covers a band of relations as wide as its tolerance.
         max_classes: classes searched, by decreasing TD-error variance.
         max_candidates: candidate compounds scored per class, most frequent first.
 
     Returns:
-        (split, compound) pairs; ``split.feature`` is -1 until the compound gets a feature id.
+        (split, compound) pairs (``split.feature`` is -1 until the compound gets a feature
+        id), and the classes searched.
     """
     if db.occurrences is None:
         raise ValueError("compound splits need a database that keeps feature occurrences")
     found = []
     searched = aliased_classes(states, db.actions, deltas, n_states, n_actions, min_count)
-    for state in searched[:max_classes].tolist():
+    searched = [state for state in searched.tolist() if state not in skip][:max_classes]
+    for state in searched:
         rows = torch.nonzero(states == state).flatten()
         percepts, local = np.unique(db.obs[rows].numpy(), return_inverse=True)
         occurrences = db.occurrences.select(percepts)
-        candidates = propose(occurrences, tolerance, min_count, max_candidates)
+        candidates = propose(occurrences, tolerances, min_count, max_candidates)
         if not candidates:
             continue
         presence = presence_of_candidates(occurrences, candidates)[torch.from_numpy(local)]
@@ -101,4 +108,4 @@ def find_compound_splits(
             best = splits[0]
             split = Split(state, -1, best.action, best.reduction, best.p_value)
             found.append((split, candidates[best.feature]))
-    return found
+    return found, searched

@@ -76,10 +76,11 @@ class RLVC:
         gamma: discount factor.
         alpha: significance level of the split t-tests.
         min_count: minimum interactions on each side of a split.
-        use_compounds: when a stage finds no significant split, search compound features
-            for the most aliased classes (the database must keep feature occurrences); each
-            compound found becomes feature ``n_features``, which then grows.
-        compound_tolerance: tolerance of new compounds, in units of keypoint scale.
+        use_compounds: at every stage, search compound features for the most aliased classes
+            that no feature splits significantly (the database must keep feature
+            occurrences); each compound found becomes feature ``n_features``, which then
+            grows.
+        compound_tolerances: tolerances of candidate compounds, in units of keypoint scale.
     """
 
     n_features: int
@@ -88,13 +89,16 @@ class RLVC:
     alpha: float = 0.05
     min_count: int = 10
     use_compounds: bool = False
-    compound_tolerance: float = 1.0
+    compound_tolerances: tuple[float, ...] = (1.0,)
     compounds: list[Compound] = field(default_factory=list, init=False)
     tree: ClassTree = field(init=False)
     history: list[StageRecord] = field(default_factory=list, init=False)
     timing: Timing = field(default_factory=Timing, init=False)
     _q: torch.Tensor | None = field(default=None, init=False, repr=False)
     # The database and classes the next solve of ``q`` reads (after splits, until it runs).
+    # Classes whose compound search found nothing since their interactions last changed (a
+    # split, a new database): searching them again would find about the same candidates.
+    _no_compound: set[int] = field(default_factory=set, init=False, repr=False)
     _pending: tuple[InteractionDatabase, torch.Tensor] | None = field(
         default=None, init=False, repr=False
     )
@@ -108,8 +112,9 @@ class RLVC:
             raise ValueError(f"gamma must be in [0, 1), got {self.gamma}")
         if not 0 < self.alpha < 1:
             raise ValueError(f"alpha must be in (0, 1), got {self.alpha}")
-        if not self.compound_tolerance > 0:
-            raise ValueError(f"compound_tolerance must be > 0, got {self.compound_tolerance}")
+        self.compound_tolerances = tuple(float(t) for t in self.compound_tolerances)
+        if not self.compound_tolerances or min(self.compound_tolerances) <= 0:
+            raise ValueError(f"compound_tolerances must be > 0, got {self.compound_tolerances}")
         if self.min_count < 2:
             raise ValueError(
                 f"min_count must be >= 2 (a variance needs two samples), got {self.min_count}"
@@ -173,6 +178,7 @@ class RLVC:
             return self._learn(db, max_stages, progress, on_stage)
 
     def _learn(self, db, max_stages, progress, on_stage) -> RLVC:
+        self._no_compound.clear()
         rows, features = db.interaction_features()
         classes = self.tree.classify(db.presence)
         bar = tqdm(range(max_stages), desc="RLVC stages", disable=not progress, leave=False)
@@ -195,12 +201,16 @@ class RLVC:
                 self.alpha,
                 self.min_count,
             )
-            if not splits and self.use_compounds:
+            if self.use_compounds:
                 compound_start = time.perf_counter()
-                splits = self._compound_splits(db, s, deltas)
-                rows, features = db.interaction_features()
+                split_already = {split.state for split in splits}
+                made = self._compound_splits(db, s, deltas, split_already | self._no_compound)
+                if made:
+                    splits += made
+                    rows, features = db.interaction_features()
                 self.timing.compounds += time.perf_counter() - compound_start
             for split in splits:
+                self._no_compound.discard(split.state)
                 new_class = self.tree.split(split.state, split.feature)
                 # Incremental reclassification: only percepts of the split class can move.
                 moved = (classes == split.state) & db.presence[:, split.feature]
@@ -229,11 +239,15 @@ class RLVC:
         return self
 
     def _compound_splits(
-        self, db: InteractionDatabase, states: torch.Tensor, deltas: torch.Tensor
+        self,
+        db: InteractionDatabase,
+        states: torch.Tensor,
+        deltas: torch.Tensor,
+        skip: set[int],
     ) -> list[Split]:
-        """Significant compound splits of the most aliased classes; their compounds join the
-        features (of this learner, its tree and ``db``)."""
-        found = find_compound_splits(
+        """Significant compound splits of the most aliased classes not in ``skip``; their
+        compounds join the features (of this learner, its tree and ``db``)."""
+        found, searched = find_compound_splits(
             db,
             states,
             deltas,
@@ -241,8 +255,10 @@ class RLVC:
             self.n_actions,
             self.alpha,
             self.min_count,
-            self.compound_tolerance,
+            self.compound_tolerances,
+            skip=skip,
         )
+        self._no_compound.update(set(searched) - {split.state for split, _ in found})
         new: dict[Compound, int] = {}  # two classes may pick the same compound
         for split, compound in found:
             split.feature = new.setdefault(compound, self.n_features + len(new))
@@ -276,7 +292,7 @@ class RLVC:
                 "alpha": self.alpha,
                 "min_count": self.min_count,
                 "use_compounds": self.use_compounds,
-                "compound_tolerance": self.compound_tolerance,
+                "compound_tolerances": list(self.compound_tolerances),
             },
             "compounds": [c.as_list() for c in self.compounds],
             "tree": self.tree.state_dict(),
