@@ -3,6 +3,7 @@
 python scripts/train_rlvc.py                       # the visual maze, 30,000 interactions
 python scripts/train_rlvc.py --seed 3 --out runs/s3
 python scripts/train_rlvc.py --env-kwargs '{"layout_seed": 7}'   # another maze layout
+python scripts/train_rlvc.py --env vistask/VisualMountainCar-v0 --compounds   # paper Figs. 6-7
 """
 
 import argparse
@@ -29,9 +30,7 @@ def main() -> None:
     parser.add_argument(
         "--out", default=None, help="run directory (default runs/train_rlvc-<time>)"
     )
-    parser.add_argument(
-        "--no-compounds", action="store_true", help="RLVC without compound features"
-    )
+    parser.add_argument("--compounds", action="store_true", help="let RLVC make compound features")
     parser.add_argument("--no-progress", action="store_true")
     args = parser.parse_args()
     train_rlvc(
@@ -41,7 +40,7 @@ def main() -> None:
         seed=args.seed,
         out=args.out,
         progress=not args.no_progress,
-        compounds=not args.no_compounds,
+        compounds=args.compounds,
     )
 
 

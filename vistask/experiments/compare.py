@@ -31,7 +31,7 @@ from vistask.experiments.tasks import GridCells, Task, task_for
 from vistask.rlvc import random_policy
 from vistask.runs import print_table, run_dir, tensorboard, write_summary
 
-METHODS = ("rlvc", "rlvc_no_compounds", "dqn", "ppo", "tabular", "random")
+METHODS = ("rlvc", "rlvc_compounds", "dqn", "ppo", "tabular", "random")
 DEFAULT_BUDGETS = (1_000, 2_000, 5_000, 10_000, 20_000, 50_000, 100_000)
 QUICK_BUDGETS = (300, 1_000)
 THRESHOLDS = (0.9, 0.75)  # fractions of the oracle's return; 0.9 is the issue's target
@@ -148,7 +148,7 @@ def _model_policy(model) -> Policy:
 
 
 def run_rlvc(
-    config: Comparison, seed: int, evaluate: Evaluate, log: Log, compounds: bool = True
+    config: Comparison, seed: int, evaluate: Evaluate, log: Log, compounds: bool = False
 ) -> tuple[list[float], float, list[int]]:
     """A fresh RLVCAgent per budget (RLVC learns from a fixed database of B interactions).
 
@@ -255,7 +255,7 @@ def run_method(
     if method in ("dqn", "ppo"):
         returns, train = run_sb3(config, method, seed, evaluate, log, tb_root / f"seed{seed}")
     elif method.startswith("rlvc"):
-        compounds = method == "rlvc"
+        compounds = method == "rlvc_compounds"
         returns, train, classes = run_rlvc(config, seed, evaluate, log, compounds)
     elif method == "tabular":
         returns, train = run_tabular(config, seed, evaluate, log, task, grid)
@@ -271,7 +271,7 @@ def run_method(
 def tabular_grid(results: list[RunResult]) -> int:
     """Cells per dimension giving the tabular baseline as many cells as RLVC's classes (the
     median over seeds at the largest budget; RLVC with compounds if it ran)."""
-    runs = [r for r in results if r.method == "rlvc"] or [
+    runs = [r for r in results if r.method == "rlvc_compounds"] or [
         r for r in results if r.method.startswith("rlvc")
     ]
     if not runs:

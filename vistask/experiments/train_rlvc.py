@@ -222,7 +222,7 @@ def train_rlvc(
     out: str | Path | None = None,
     progress: bool = True,
     pictures: bool = True,
-    compounds: bool = True,
+    compounds: bool = False,
 ) -> dict:
     """Learn visual classes with ``RLVCAgent``'s defaults, score the greedy policy, save the
     agent, its TensorBoard run, pictures and ``summary.json`` in ``out``.
