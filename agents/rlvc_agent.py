@@ -69,8 +69,9 @@ class RLVCAgent(SB3Model):
         n_envs: episodes collected side by side on the classes, so that features are
             extracted for batches of views.
         max_keypoints: SIFT keeps the strongest keypoints of each percept (0: all).
-        compounds: make compound features (pairs of features in a stable spatial relation)
-            for the most aliased classes that no feature splits. Off by default: on the maze
+        compounds: make compound features (pairs of parts, coarse groups of words or
+            compounds, in a stable spatial relation) for the most aliased classes that no
+            feature splits. Off by default: on the maze
             they lowered the mean return (0.917 of the oracle's against 0.927, seeds 0-4);
             where a relation carries the state (a gauge's needle), they are what reads it.
         gamma: discount (default: the env's ``gamma`` attribute if it has one, else 0.99).

@@ -82,6 +82,10 @@ class Comparison:
         check_at_least(1, seeds=seeds, eval_starts=eval_starts)
         if grid is not None:
             check_at_least(1, grid=grid)
+        elif "tabular" in methods and not any(m.startswith("rlvc") for m in methods):
+            raise ValueError(
+                "grid=None sizes the tabular grid by RLVC's classes: add an rlvc method"
+            )
         self.env_id, self.env_kwargs = env_id, dict(env_kwargs or {})
         self.methods, self.budgets, self.seeds, self.seed0 = methods, budgets, seeds, seed0
         self.eval_starts, self.grid, self.device = eval_starts, grid, device
@@ -187,10 +191,10 @@ def run_tabular(
 
 
 def run_random(
-    config: Comparison, seed: int, evaluate: Evaluate, log: Log
+    config: Comparison, seed: int, evaluate: Evaluate, log: Log, task: Task
 ) -> tuple[list[float], float]:
     """Uniformly random actions: no learning, the same score at every budget up to noise."""
-    n_actions = int(gym.make(config.env_id, **config.env_kwargs).action_space.n)
+    n_actions = int(task.env.action_space.n)
     returns = []
     for budget in config.budgets:
         returns.append(evaluate(_random_policy(seed + budget, n_actions)))
@@ -260,7 +264,7 @@ def run_method(
     elif method == "tabular":
         returns, train = run_tabular(config, seed, evaluate, log, task, grid)
     else:
-        returns, train = run_random(config, seed, evaluate, log)
+        returns, train = run_random(config, seed, evaluate, log, task)
     writer.close()
     if len(returns) != len(config.budgets):
         raise RuntimeError(f"{method} produced {len(returns)} of {len(config.budgets)} returns")

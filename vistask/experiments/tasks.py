@@ -17,7 +17,7 @@ import vistask.envs  # noqa: F401  (registers the environments)
 from vistask.envs import MazeOracle, VisualMazeEnv, evaluate_policy, start_positions
 from vistask.envs.car_oracle import CarOracle, evaluate_car_policy, start_states
 from vistask.envs.maze_oracle import EvaluationResult, Policy, grid_cells
-from vistask.envs.mountain_car import VisualMountainCarEnv
+from vistask.envs.mountain_car import MAX_POSITION, MAX_SPEED, VisualMountainCarEnv
 
 
 class MazeTask:
@@ -59,7 +59,8 @@ class CarTask:
     def cells(self, states: np.ndarray, grid: int) -> np.ndarray:
         """(N,) cell of each true (position, velocity) on a ``grid`` x ``grid`` grid."""
         states = np.asarray(states, dtype=float).reshape(-1, 2)
-        unit = (states - [-1.0, -3.0]) / [2.0, 6.0]
+        bound = np.array([MAX_POSITION, MAX_SPEED])
+        unit = (states + bound) / (2 * bound)
         index = np.clip((unit * grid).astype(int), 0, grid - 1)
         return index[:, 1] * grid + index[:, 0]
 

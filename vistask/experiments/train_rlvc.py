@@ -152,8 +152,7 @@ def car_pictures(agent: RLVCAgent, task: CarTask, out: Path, grid: int = 50) -> 
     summary = {"policy_agreement_with_oracle": float((actions == oracle).mean())}
     tested = rlvc.compound_features
     if tested:
-        first = rlvc.n_features - len(rlvc.compounds)
-        compound = rlvc.compounds[tested[0] - first]
+        compound = rlvc.compounds[tested[0] - rlvc.n_words]
         occurrences = agent.extractor.occurrences(percepts, rlvc.compounds)
         shown = np.flatnonzero(occurrences.presence(rlvc.n_features)[:, tested[0]].numpy())
         if len(shown):
@@ -234,7 +233,7 @@ def train_rlvc(
         seed: seeds the agent.
         out: run directory (default ``runs/train_rlvc-<time>``).
         progress: show progress bars.
-        pictures: draw values and policies (maze only).
+        pictures: draw values and policies (the maze, the car).
         compounds: let the agent make compound features (``RLVCAgent``'s ``compounds``).
 
     Returns:

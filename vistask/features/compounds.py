@@ -179,13 +179,19 @@ def _displacement(occ: Occurrences, i: np.ndarray, j: np.ndarray) -> np.ndarray:
     return (occ.xy[j] - occ.xy[i]) / occ.scale[i, None]
 
 
+def _within(displacement: np.ndarray, compound: Compound) -> np.ndarray:
+    """(Q,) bool: the displacements (Q, 2) that match ``compound``'s offset within its
+    tolerance."""
+    error = displacement - np.asarray(compound.offset, np.float32)
+    return (error * error).sum(1) <= compound.tolerance**2
+
+
 def match(occ: Occurrences, compound: Compound) -> tuple[np.ndarray, np.ndarray]:
     """Pairs of occurrences that realise ``compound``: (i (Q,), j (Q,)) indices into ``occ``."""
     first = np.flatnonzero(occ.part == compound.first)
     second = np.flatnonzero(occ.part == compound.second)
     i, j = pairs(occ, first, second)
-    error = _displacement(occ, i, j) - np.asarray(compound.offset, np.float32)
-    near = (error * error).sum(1) <= compound.tolerance**2
+    near = _within(_displacement(occ, i, j), compound)
     return i[near], j[near]
 
 
@@ -267,7 +273,7 @@ def propose(
 
 
 def presence_of_candidates(occ: Occurrences, candidates: list[Compound]) -> torch.Tensor:
-    """(n_images, K) bool: candidate k present in image i (pairs of each feature pair are
+    """(n_images, K) bool: candidate k present in image i (pairs of each part pair are
     enumerated once, however many candidates share it)."""
     presence = torch.zeros(occ.n_images, len(candidates), dtype=torch.bool)
     by_pair: dict[tuple[int, int], list[int]] = {}
@@ -276,13 +282,11 @@ def presence_of_candidates(occ: Occurrences, candidates: list[Compound]) -> torc
     order = np.argsort(occ.part, kind="stable")
     bounds = np.searchsorted(occ.part[order], np.arange(int(occ.part.max(initial=0)) + 2))
     for (a, b), ks in by_pair.items():
-        first, second = np.sort(order[bounds[a] : bounds[a + 1]]), order[bounds[b] : bounds[b + 1]]
-        i, j = pairs(occ, first, np.sort(second))
+        # A stable argsort keeps each part's occurrences in ascending (image) order.
+        i, j = pairs(occ, order[bounds[a] : bounds[a + 1]], order[bounds[b] : bounds[b + 1]])
         d = _displacement(occ, i, j)
         for k in ks:
-            c = candidates[k]
-            error = d - np.asarray(c.offset, np.float32)
-            hit = occ.image[i[(error * error).sum(1) <= c.tolerance**2]]
+            hit = occ.image[i[_within(d, candidates[k])]]
             presence[torch.from_numpy(hit).long(), k] = True
     return presence
 

@@ -167,7 +167,8 @@ class VisualFeatureExtractor:
         groups: coarse groups of the prototypes (a vocabulary tree), searched instead of all
             prototypes (None: exact nearest prototype).
         max_distance: descriptors farther than this from every prototype are ignored (None: never).
-        cache_size: ``presence`` remembers the features of this many distinct images (0: none).
+        cache_size: ``occurrences`` (and so ``presence``) remembers the words, positions and
+            scales of this many distinct images (0: none).
             Control loops see the same percept again and again (a blocked move leaves the
             view unchanged; evaluations replay the same starts), and extraction is the
             dominant cost.
@@ -298,13 +299,15 @@ class VisualFeatureExtractor:
     ) -> Occurrences:
         """Where each word (and compound) occurs in images whose keypoints are already
         extracted (see ``occurrences``)."""
-        words = self._table(
-            [
-                (w, k.xy[i], k.scale[i])
-                for k, (i, w) in zip(detected, self.words(detected), strict=True)
-            ]
-        )
+        words = self._table(self._per_image(detected))
         return add_compound_occurrences(words, list(compounds), self.n_features)
+
+    def _per_image(self, detected: Sequence[Keypoints]) -> list[tuple]:
+        """Per image, the (words, xy, scale) of its keypoints that have a word."""
+        return [
+            (w.astype(np.int32), k.xy[i], k.scale[i])
+            for k, (i, w) in zip(detected, self.words(detected), strict=True)
+        ]
 
     def _table(self, per_image: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray]]) -> Occurrences:
         """One ``Occurrences`` table from per-image (words, xy, scale); a word's compound
@@ -334,11 +337,7 @@ class VisualFeatureExtractor:
         found: dict[tuple, tuple] = {}
         if todo:
             detected = self.keypoints.batch([images[i] for i in todo.values()])
-            pairs = self.words(detected)
-            found = {
-                key: (w.astype(np.int32), k.xy[i], k.scale[i])
-                for key, k, (i, w) in zip(todo, detected, pairs, strict=True)
-            }
+            found = dict(zip(todo, self._per_image(detected), strict=True))
             if len(self._cache) + len(found) > self.cache_size:
                 self._cache.clear()  # simpler than LRU, and rare: the cache holds 100k views
             if self.cache_size:

@@ -1,8 +1,9 @@
 """Compound splits (paper section 2.5.1): new features for aliased classes that no feature splits.
 
-When a stage finds no significant split, the classes with the largest TD-error variance are
-searched again with candidate compounds made from their own percepts: pairs of features that
-recur in a stable relative position (``vistask.features.propose``). The candidates are scored
+At every stage, the classes that no feature splits significantly, largest TD-error variance
+first, are searched again with candidate compounds made from their own percepts: pairs of parts
+(coarse groups of words, or compounds) that recur in a stable relative position
+(``vistask.features.propose``). The candidates are scored
 as primitive features are (``find_splits``: variance reduction and Welch's t-test), at the
 significance level divided by the number of candidates (Bonferroni): hundreds of candidates are
 made for each class from the very TD errors they are tested on, and without the correction
@@ -60,7 +61,8 @@ def find_compound_splits(
     skip: set[int] | frozenset = frozenset(),
 ) -> tuple[list[tuple[Split, Compound]], list[int]]:
     """The best significant compound split of each of the ``max_classes`` most aliased classes
-    that are not in ``skip`` (classes that a primitive feature splits already).
+    that are not in ``skip`` (classes that a feature splits already, or that the learner
+    searched in vain since they last changed).
 
     Args:
         db: database with feature occurrences (``db.occurrences``).
@@ -72,7 +74,8 @@ def find_compound_splits(
         tolerances: tolerances of the candidates, in units of their first part's keypoint
             scale: a compound covers a band of relations as wide as its tolerance.
         max_classes: classes searched, by decreasing TD-error variance.
-        max_candidates: candidate compounds scored per class, most frequent first.
+        max_candidates: candidate compounds scored per class and tolerance, most frequent
+            first.
 
     Returns:
         (split, compound) pairs (``split.feature`` is -1 until the compound gets a feature

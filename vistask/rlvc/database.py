@@ -257,6 +257,10 @@ class InteractionDatabase:
         m = len(first.presence)
         has_positions = first.positions is not None and second.positions is not None
         has_occurrences = first.occurrences is not None and second.occurrences is not None
+        if (first.occurrences is None) != (second.occurrences is None):
+            raise ValueError(
+                "cannot join a database that keeps feature occurrences with one that does not"
+            )
         return cls(
             presence=torch.cat([first.presence, second.presence]),
             obs=torch.cat([first.obs, second.obs + m]),

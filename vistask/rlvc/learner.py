@@ -1,8 +1,10 @@
 """RLVC: reinforcement learning of visual classes (paper sections 2.1-2.3).
 
 The stage loop, top to bottom: map interactions to classes, solve Q on the estimated class MDP,
-compute TD errors, find the significant split of every aliased class, split, repeat until no
-class splits or the stage cap. The policy acts on Q solved on the current classes.
+compute TD errors, find the significant split of every aliased class (with ``use_compounds``,
+compound features for the most aliased classes that no feature splits, section 2.5.1), split,
+repeat until no class splits or the stage cap. The policy acts on Q solved on the current
+classes.
 """
 
 from __future__ import annotations
@@ -50,7 +52,7 @@ class StageRecord:
     splits: int
     solve_seconds: float
     split_seconds: float
-    compounds: int = 0
+    compounds: int = 0  # compounds made so far (not this stage's)
 
 
 @dataclass
@@ -95,10 +97,12 @@ class RLVC:
     history: list[StageRecord] = field(default_factory=list, init=False)
     timing: Timing = field(default_factory=Timing, init=False)
     _q: torch.Tensor | None = field(default=None, init=False, repr=False)
-    # The database and classes the next solve of ``q`` reads (after splits, until it runs).
     # Classes whose compound search found nothing since their interactions last changed (a
-    # split, a new database): searching them again would find about the same candidates.
+    # split, a new database). Their candidates would be the same; only the TD errors they are
+    # tested on drift as Q is solved again, and re-searching them every stage doubled the
+    # search's time on the maze: a deliberate trade of a little power for time.
     _no_compound: set[int] = field(default_factory=set, init=False, repr=False)
+    # The database and classes the next solve of ``q`` reads (after splits, until it runs).
     _pending: tuple[InteractionDatabase, torch.Tensor] | None = field(
         default=None, init=False, repr=False
     )
@@ -270,10 +274,15 @@ class RLVC:
         return [split for split, _ in found]
 
     @property
+    def n_words(self) -> int:
+        """Features that are not compounds (the vocabulary's words): compound c is feature
+        ``n_words + c``."""
+        return self.n_features - len(self.compounds)
+
+    @property
     def compound_features(self) -> list[int]:
         """Feature ids of the compounds that the classes test."""
-        first = self.n_features - len(self.compounds)
-        return [f for f in self.tree.selected_features if f >= first]
+        return [f for f in self.tree.selected_features if f >= self.n_words]
 
     def values(self) -> torch.Tensor:
         """(S,) V = max_a Q of every class."""
@@ -304,7 +313,7 @@ class RLVC:
     def from_state_dict(cls, state: dict) -> RLVC:
         rlvc = cls(**state["config"])
         rlvc.tree = ClassTree.from_state_dict(state["tree"])
-        rlvc.compounds = [Compound.from_list(c) for c in state["compounds"]]
+        rlvc.compounds = [Compound.from_list(c) for c in state.get("compounds", [])]
         rlvc._q = state["q"]
         rlvc.history = [StageRecord(**r) for r in state["history"]]
         return rlvc

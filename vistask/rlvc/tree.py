@@ -189,7 +189,7 @@ class VisualClassifier:
                 f"vocabulary mismatch: the class tree was learned on vocabulary "
                 f"{state['fingerprint']}, got {extractor.fingerprint}"
             )
-        compounds = [Compound.from_list(c) for c in state["compounds"]]
+        compounds = [Compound.from_list(c) for c in state.get("compounds", [])]
         return cls(extractor, ClassTree.from_state_dict(state["tree"]), compounds)
 
     def save(self, path: str | Path) -> None:
