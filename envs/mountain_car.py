@@ -32,10 +32,8 @@ import cv2
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
-from gymnasium.utils import seeding
-from gymnasium.vector import AutoresetMode, VectorEnv
-from gymnasium.vector.utils import batch_space
 
+from vistask.envs.batched import BatchedCopies
 from vistask.envs.tapestry import PHOTOS, make_tapestry
 
 MASS = 1.0
@@ -505,7 +503,7 @@ class VisualMountainCarEnv(gym.Env):
         return VisualMountainCarVectorEnv.like(self, num_envs, max_episode_steps)
 
 
-class VisualMountainCarVectorEnv(VectorEnv):
+class VisualMountainCarVectorEnv(BatchedCopies):
     """``num_envs`` visual cars stepped as one batch: one ``hill_step`` for all.
 
     Each copy draws its starts from its own generator, exactly as a ``VisualMountainCarEnv``
@@ -526,8 +524,6 @@ class VisualMountainCarVectorEnv(VectorEnv):
         **kwargs: ``VisualMountainCarEnv`` arguments.
     """
 
-    metadata: ClassVar[dict] = {"autoreset_mode": AutoresetMode.DISABLED}
-
     def __init__(self, num_envs: int = 1, max_episode_steps: int | None = None, **kwargs) -> None:
         self._attach(VisualMountainCarEnv(**kwargs), num_envs, max_episode_steps)
 
@@ -543,16 +539,9 @@ class VisualMountainCarVectorEnv(VectorEnv):
     def _attach(
         self, car: VisualMountainCarEnv, num_envs: int, max_episode_steps: int | None
     ) -> None:
-        if num_envs < 1:
-            raise ValueError(f"num_envs must be >= 1, got {num_envs}")
-        self.car, self.num_envs, self.max_episode_steps = car, num_envs, max_episode_steps
-        self.single_observation_space = car.observation_space
-        self.single_action_space = car.action_space
-        self.observation_space = batch_space(car.observation_space, num_envs)
-        self.action_space = batch_space(car.action_space, num_envs)
+        super()._attach(car, num_envs, max_episode_steps)
+        self.car = car
         self.states = np.zeros((num_envs, 2))
-        self.steps = np.zeros(num_envs, dtype=int)
-        self.rngs: list[np.random.Generator | None] = [None] * num_envs
 
     @property
     def gamma(self) -> float:
@@ -560,17 +549,6 @@ class VisualMountainCarVectorEnv(VectorEnv):
 
     def reset(self, *, seed: int | list[int | None] | None = None, options: dict | None = None):
         options = options or {}
-        mask = options.get("reset_mask", np.ones(self.num_envs, dtype=bool))
-        if not (
-            isinstance(mask, np.ndarray) and mask.dtype == bool and mask.shape == (self.num_envs,)
-        ):
-            raise ValueError(f"reset_mask must be a ({self.num_envs},) bool array, got {mask!r}")
-        if seed is None or isinstance(seed, int | np.integer):
-            seeds = [None if seed is None else int(seed) + i for i in range(self.num_envs)]
-        else:
-            seeds = list(seed)
-        if len(seeds) != self.num_envs:
-            raise ValueError(f"need {self.num_envs} seeds, got {len(seeds)}")
         starts = None
         if "states" in options:
             starts = check_states(options["states"], "start states")
@@ -578,32 +556,16 @@ class VisualMountainCarVectorEnv(VectorEnv):
                 raise ValueError(
                     f"options['states'] must be ({self.num_envs}, 2), got {starts.shape}"
                 )
+        mask = self._reset_copies(seed, options)
         for i in np.flatnonzero(mask):
-            if seeds[i] is not None or self.rngs[i] is None:
-                self.rngs[i] = seeding.np_random(seeds[i])[0]
             self.states[i] = sample_states(self.rngs[i], 1)[0] if starts is None else starts[i]
-        self.steps[mask] = 0
         infos = {"position": self.states.copy(), "_position": mask.copy()}
         return self.car.percepts(self.states), infos
 
     def step(self, actions):
-        actions = np.asarray(actions)
-        n_actions = len(CAR_ACTION_NAMES)
-        if (
-            actions.shape != (self.num_envs,)
-            or not np.issubdtype(actions.dtype, np.integer)
-            or actions.min() < 0
-            or actions.max() >= n_actions
-        ):
-            raise ValueError(
-                f"expected {self.num_envs} integer actions in 0..{n_actions - 1}, got {actions}"
-            )
-        if any(rng is None for rng in self.rngs):
-            raise RuntimeError("call reset() before step()")
+        actions = self._check_actions(actions)
         self.states, rewards, terminated = hill_step(self.states, FORCES[actions])
-        self.steps += 1
-        limit = self.max_episode_steps
-        truncated = self.steps >= limit if limit is not None else np.zeros(self.num_envs, bool)
+        truncated = self._count_step()
         every = np.ones(self.num_envs, dtype=bool)
         infos = {"position": self.states.copy(), "_position": every}
         return self.car.percepts(self.states), rewards, terminated, truncated, infos

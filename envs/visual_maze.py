@@ -13,10 +13,8 @@ import cv2
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
-from gymnasium.utils import seeding
-from gymnasium.vector import AutoresetMode, VectorEnv
-from gymnasium.vector.utils import batch_space
 
+from vistask.envs.batched import BatchedCopies
 from vistask.envs.tapestry import make_tapestry
 
 Rect = tuple[float, float, float, float]  # (x0, y0, x1, y1), x0 < x1, y0 < y1
@@ -317,7 +315,7 @@ class VisualMazeEnv(gym.Env):
         return VisualMazeVectorEnv.like(self, num_envs, max_episode_steps)
 
 
-class VisualMazeVectorEnv(VectorEnv):
+class VisualMazeVectorEnv(BatchedCopies):
     """``num_envs`` visual mazes stepped as one batch: one ``MazeGeometry.move`` for all.
 
     Each copy draws its start and its noise from its own generator, exactly as a
@@ -338,8 +336,6 @@ class VisualMazeVectorEnv(VectorEnv):
         **kwargs: ``VisualMazeEnv`` arguments.
     """
 
-    metadata: ClassVar[dict] = {"autoreset_mode": AutoresetMode.DISABLED}
-
     def __init__(self, num_envs: int = 1, max_episode_steps: int | None = None, **kwargs) -> None:
         self._attach(VisualMazeEnv(**kwargs), num_envs, max_episode_steps)
 
@@ -353,58 +349,24 @@ class VisualMazeVectorEnv(VectorEnv):
         return envs
 
     def _attach(self, maze: VisualMazeEnv, num_envs: int, max_episode_steps: int | None) -> None:
-        if num_envs < 1:
-            raise ValueError(f"num_envs must be >= 1, got {num_envs}")
-        self.maze, self.num_envs, self.max_episode_steps = maze, num_envs, max_episode_steps
-        self.single_observation_space = maze.observation_space
-        self.single_action_space = maze.action_space
-        self.observation_space = batch_space(maze.observation_space, num_envs)
-        self.action_space = batch_space(maze.action_space, num_envs)
+        super()._attach(maze, num_envs, max_episode_steps)
+        self.maze = maze
         self.positions = np.zeros((num_envs, 2))
-        self.steps = np.zeros(num_envs, dtype=int)
-        self.rngs: list[np.random.Generator | None] = [None] * num_envs
 
     def _percepts(self) -> np.ndarray:
         return np.stack([self.maze.percept_at(p) for p in self.positions])
 
     def reset(self, *, seed: int | list[int | None] | None = None, options: dict | None = None):
-        mask = (options or {}).get("reset_mask", np.ones(self.num_envs, dtype=bool))
-        if not (
-            isinstance(mask, np.ndarray) and mask.dtype == bool and mask.shape == (self.num_envs,)
-        ):
-            raise ValueError(f"reset_mask must be a ({self.num_envs},) bool array, got {mask!r}")
-        if seed is None or isinstance(seed, int | np.integer):
-            seeds = [None if seed is None else int(seed) + i for i in range(self.num_envs)]
-        else:
-            seeds = list(seed)
-        if len(seeds) != self.num_envs:
-            raise ValueError(f"need {self.num_envs} seeds, got {len(seeds)}")
+        mask = self._reset_copies(seed, options or {})
         for i in np.flatnonzero(mask):
-            if seeds[i] is not None or self.rngs[i] is None:
-                self.rngs[i] = seeding.np_random(seeds[i])[0]
             self.positions[i] = self.maze.geometry.sample_free(self.rngs[i], 1)[0]
-        self.steps[mask] = 0
         return self._percepts(), {"position": self.positions.copy(), "_position": mask.copy()}
 
     def step(self, actions):
-        actions = np.asarray(actions)
-        n_actions = len(ACTION_NAMES)
-        if (
-            actions.shape != (self.num_envs,)
-            or not np.issubdtype(actions.dtype, np.integer)
-            or actions.min() < 0
-            or actions.max() >= n_actions
-        ):
-            raise ValueError(
-                f"expected {self.num_envs} integer actions in 0..{n_actions - 1}, got {actions}"
-            )
-        if any(rng is None for rng in self.rngs):
-            raise RuntimeError("call reset() before step()")
+        actions = self._check_actions(actions)
         noise = np.concatenate([rng.standard_normal((1, 2)) for rng in self.rngs])
         self.positions, terminated = self.maze.geometry.move(self.positions, actions, noise)
-        self.steps += 1
-        limit = self.max_episode_steps
-        truncated = self.steps >= limit if limit is not None else np.zeros(self.num_envs, bool)
+        truncated = self._count_step()
         rewards = np.where(terminated, self.maze.geometry.reward, 0.0)
         every = np.ones(self.num_envs, dtype=bool)
         infos = {"position": self.positions.copy(), "_position": every}
