@@ -76,10 +76,6 @@ class Occurrences:
         return len(self.image)
 
     @classmethod
-    def empty(cls, n_images: int = 0) -> Occurrences:
-        return cls(np.zeros(0), np.zeros(0), np.zeros((0, 2)), np.zeros(0), n_images)
-
-    @classmethod
     def concat(cls, parts: list[Occurrences]) -> Occurrences:
         """The images of ``parts`` one after the other (image ids shifted)."""
         offsets = np.cumsum([0] + [p.n_images for p in parts])
