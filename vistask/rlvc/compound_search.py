@@ -84,8 +84,8 @@ def find_compound_splits(
     if db.occurrences is None:
         raise ValueError("compound splits need a database that keeps feature occurrences")
     found = []
-    searched = aliased_classes(states, db.actions, deltas, n_states, n_actions, min_count)
-    searched = [state for state in searched.tolist() if state not in skip][:max_classes]
+    ranked = aliased_classes(states, db.actions, deltas, n_states, n_actions, min_count)
+    searched = [state for state in ranked.tolist() if state not in skip][:max_classes]
     for state in searched:
         rows = torch.nonzero(states == state).flatten()
         percepts, local = np.unique(db.obs[rows].numpy(), return_inverse=True)
