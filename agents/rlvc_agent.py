@@ -74,6 +74,13 @@ class RLVCAgent(SB3Model):
             feature splits. Off by default: on the maze
             they lowered the mean return (0.917 of the oracle's against 0.927, seeds 0-4);
             where a relation carries the state (a gauge's needle), they are what reads it.
+        compaction: hold the classes in a BDD and merge classes with close values and
+            interchangeable greedy actions when splitting stops, then drop the features that
+            no percept seen needs (False: a decision tree that only splits).
+        compact_every: with ``compaction``, merge every this many stages as well (None:
+            only when splitting stops).
+        compaction_tolerance: merge classes whose values, and the values of their greedy
+            actions in each other, differ by at most this share of the range of values.
         gamma: discount (default: the env's ``gamma`` attribute if it has one, else 0.99).
         tensorboard_log: folder of TensorBoard runs (None: no logging).
         seed: seeds the episodes, the exploration and the vocabulary.
@@ -91,6 +98,9 @@ class RLVCAgent(SB3Model):
         n_envs: int = 128,
         max_keypoints: int = 24,
         compounds: bool = False,
+        compaction: bool = False,
+        compact_every: int | None = None,
+        compaction_tolerance: float = 0.05,
         gamma: float | None = None,
         tensorboard_log: str | Path | None = None,
         seed: int = 0,
@@ -118,7 +128,16 @@ class RLVCAgent(SB3Model):
         self.n_words, self.databases = int(n_words), int(databases)
         self.alpha, self.min_count, self.max_stages = float(alpha), int(min_count), max_stages
         self.epsilon, self.n_envs, self.max_keypoints = float(epsilon), n_envs, max_keypoints
+        if compact_every is not None:
+            check_integers(compact_every=compact_every)
+            check_at_least(1, compact_every=compact_every)
+        if not 0 <= compaction_tolerance < 1:
+            raise ValueError(
+                f"compaction_tolerance must be in [0, 1), got {compaction_tolerance!r}"
+            )
         self.compounds = bool(compounds)
+        self.compaction, self.compact_every = bool(compaction), compact_every
+        self.compaction_tolerance = float(compaction_tolerance)
         self.gamma, self.seed = float(gamma), int(seed)
         self.tensorboard_log = tensorboard_log
         self.env: gym.Env | None = None
@@ -245,6 +264,9 @@ class RLVCAgent(SB3Model):
                 self.alpha,
                 self.min_count,
                 use_compounds=self.compounds,
+                compaction=self.compaction,
+                compact_every=self.compact_every,
+                compaction_tolerance=self.compaction_tolerance,
             )
             fitting = time.perf_counter() - t2
         latest = InteractionDatabase.build(
@@ -297,7 +319,7 @@ class RLVCAgent(SB3Model):
     def classifier(self) -> VisualClassifier:
         """Image -> visual class (for ``vistask.wrappers.VisualClasses``)."""
         self._check_learned()
-        return VisualClassifier(self.extractor, self.rlvc.tree, self.rlvc.compounds)
+        return VisualClassifier(self.extractor, self.rlvc.structure, self.rlvc.compounds)
 
     def _check_learned(self) -> None:
         if self.rlvc is None or self.extractor is None:
@@ -351,6 +373,9 @@ class RLVCAgent(SB3Model):
                     "n_envs": self.n_envs,
                     "max_keypoints": self.max_keypoints,
                     "compounds": self.compounds,
+                    "compaction": self.compaction,
+                    "compact_every": self.compact_every,
+                    "compaction_tolerance": self.compaction_tolerance,
                     "gamma": self.gamma,
                     "seed": self.seed,
                 },

@@ -1,9 +1,10 @@
 """Gymnasium environments of vistask (installed as ``vistask.envs``).
 
-Importing this package registers ``vistask/VisualMaze-v0``, ``vistask/VisualMountainCar-v0``
-and ``vistask/GraspTrial-v0``.
+Importing this package registers ``vistask/VisualMaze-v0``, ``vistask/VisualMountainCar-v0``,
+``vistask/PlaceNavigation-v0`` and ``vistask/GraspTrial-v0``.
 Robosuite-based modules (``scene``, ``tabletop``, ``grasp_trial``) are imported only when
-used: importing robosuite takes seconds.
+used: importing robosuite takes seconds. ``place_navigation`` imports MuJoCo and sets
+MUJOCO_GL=egl when unset, for offscreen rendering without a display.
 """
 
 from gymnasium.envs.registration import register, registry
@@ -20,6 +21,17 @@ from vistask.envs.mountain_car import (
     VisualMountainCarEnv,
     VisualMountainCarVectorEnv,
     hill_step,
+)
+from vistask.envs.place_navigation import (
+    PLACE_ACTION_NAMES,
+    Jitter,
+    PlaceNavigationEnv,
+    PlaceNavigationVectorEnv,
+    PlaceOracle,
+    PlaceWorld,
+    draw_world,
+    evaluation_starts,
+    view_sheet,
 )
 from vistask.envs.visual_maze import (
     ACTION_NAMES,
@@ -45,24 +57,41 @@ if "vistask/VisualMountainCar-v0" not in registry:
         # gamma^100 = 0.006: a longer limit would only lengthen the random-action episodes.
         max_episode_steps=100,
     )
+if "vistask/PlaceNavigation-v0" not in registry:
+    register(
+        id="vistask/PlaceNavigation-v0",
+        entry_point="vistask.envs.place_navigation:PlaceNavigationEnv",
+        vector_entry_point="vistask.envs.place_navigation:PlaceNavigationVectorEnv",
+        # The oracle needs at most 14 actions on the default town; gamma^50 = 0.005.
+        max_episode_steps=50,
+    )
 if "vistask/GraspTrial-v0" not in registry:
     register(id="vistask/GraspTrial-v0", entry_point="vistask.envs.grasp_trial:GraspTrialEnv")
 
 __all__ = [
     "ACTION_NAMES",
     "CAR_ACTION_NAMES",
+    "PLACE_ACTION_NAMES",
     "CarOracle",
     "EvaluationResult",
+    "Jitter",
     "MazeGeometry",
     "MazeOracle",
+    "PlaceNavigationEnv",
+    "PlaceNavigationVectorEnv",
+    "PlaceOracle",
+    "PlaceWorld",
     "VisualMazeEnv",
     "VisualMazeVectorEnv",
     "VisualMountainCarEnv",
     "VisualMountainCarVectorEnv",
     "draw_maze",
+    "draw_world",
     "evaluate_car_policy",
     "evaluate_policy",
+    "evaluation_starts",
     "hill_step",
     "start_positions",
     "start_states",
+    "view_sheet",
 ]

@@ -1,4 +1,5 @@
-"""A montage of real photographs that ship inside installed packages (never downloaded).
+"""A montage of real photographs that ship inside installed packages (never downloaded), or
+one of them whole.
 
 The paper's maze percepts were windows of a tiled montage of COIL-100 images. COIL-100 is not
 shipped by any package, so the tapestry is built from the colour photographs bundled with
@@ -91,3 +92,30 @@ def make_tapestry(height: int, width: int, tile: int = 96, seed: int = 0) -> np.
             crop, (tile, tile), interpolation=cv2.INTER_AREA
         )
     return np.ascontiguousarray(canvas[:height, :width])
+
+
+def photo_names() -> list[str]:
+    """Names of the bundled photographs (file stems), for ``photo_canvas``."""
+    return [Path(relative).stem for _, relative in PHOTOS]
+
+
+def photo_canvas(name: str, side: int) -> np.ndarray:
+    """One bundled photograph as a (side, side, 3) uint8 canvas: its central square, resized.
+
+    The paper's real-image navigation (Fig. 5) moves over one large photograph. The largest
+    bundled photograph with texture everywhere is ``hubble_deep_field`` (872 x 1000, a real
+    photograph: galaxies of every shape and colour, 12.7 SIFT keypoints per 64-pixel window
+    on average).
+    """
+    names = photo_names()
+    if name not in names:
+        raise ValueError(f"no bundled photograph {name!r}; choose one of {', '.join(names)}")
+    if side <= 0:
+        raise ValueError(f"canvas side must be positive, got {side}")
+    photo = load_photo(names.index(name))
+    h, w = photo.shape[:2]
+    square = min(h, w)
+    y0, x0 = (h - square) // 2, (w - square) // 2
+    crop = photo[y0 : y0 + square, x0 : x0 + square]
+    interpolation = cv2.INTER_AREA if side < square else cv2.INTER_CUBIC
+    return np.ascontiguousarray(cv2.resize(crop, (side, side), interpolation=interpolation))

@@ -15,7 +15,7 @@ import numpy as np
 from gymnasium import spaces
 
 from vistask.envs.batched import BatchedCopies
-from vistask.envs.tapestry import make_tapestry
+from vistask.envs.tapestry import make_tapestry, photo_canvas
 
 Rect = tuple[float, float, float, float]  # (x0, y0, x1, y1), x0 < x1, y0 < y1
 
@@ -222,6 +222,9 @@ class VisualMazeEnv(gym.Env):
         pixels_per_unit: tapestry pixels per maze unit (the maze spans ``size * ppu`` pixels).
         tile: tapestry tile size in pixels.
         tapestry_seed: seed of the tapestry montage (the world, not the episode noise).
+        photo: move over one bundled photograph (``tapestry.photo_names()``, e.g.
+            ``"hubble_deep_field"``) instead of the montage: the paper's real-image
+            navigation.
         layout_seed: draw the obstacles, the exits (``random_layout``) and the tapestry's
             arrangement from this seed instead of the paper's layout (None).
         render_mode: ``None`` or ``"rgb_array"``.
@@ -241,6 +244,7 @@ class VisualMazeEnv(gym.Env):
         pixels_per_unit: float = 480.0,
         tile: int = 96,
         tapestry_seed: int = 0,
+        photo: str | None = None,
         layout_seed: int | None = None,
         render_mode: str | None = None,
     ) -> None:
@@ -263,7 +267,10 @@ class VisualMazeEnv(gym.Env):
         self.render_mode = render_mode
         self.margin = self.window // 2
         side = int(np.ceil(size * pixels_per_unit)) + self.window + 1
-        self.tapestry = make_tapestry(side, side, tile=tile, seed=tapestry_seed)
+        if photo is None:
+            self.tapestry = make_tapestry(side, side, tile=tile, seed=tapestry_seed)
+        else:
+            self.tapestry = photo_canvas(photo, side)
         self.tapestry.setflags(write=False)
         self.observation_space = spaces.Box(0, 255, (self.window, self.window, 3), np.uint8)
         self.action_space = spaces.Discrete(len(ACTION_NAMES))

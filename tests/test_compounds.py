@@ -108,7 +108,7 @@ def test_only_a_compound_splits_a_reward_that_depends_on_a_relation():
     c = rlvc.compounds[0]
     assert {c.first, c.second} == {0, 1}
     assert np.allclose(np.abs(c.offset), [5.0, 0.0], atol=0.5)
-    classes = rlvc.tree.classify(db.presence)[db.obs]
+    classes = rlvc.structure.classify(db.presence)[db.obs]
     values = rlvc.values()[classes].numpy()
     assert np.allclose(values, db.rewards.numpy(), atol=1e-9)  # each percept's true value
 
@@ -128,7 +128,7 @@ def test_rlvc_with_compounds_round_trips(tmp_path):
     rlvc.save(tmp_path / "rlvc.pt")
     loaded = RLVC.load(tmp_path / "rlvc.pt")
     assert loaded.compounds == rlvc.compounds
-    assert torch.equal(loaded.tree.classify(db.presence), rlvc.tree.classify(db.presence))
+    assert torch.equal(loaded.structure.classify(db.presence), rlvc.structure.classify(db.presence))
     assert torch.equal(loaded.q, rlvc.q)
 
 

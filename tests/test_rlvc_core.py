@@ -321,7 +321,7 @@ def test_rlvc_learns_the_synthetic_chain_and_its_incremental_classes_match_the_t
     db = synthetic_chain()
     rlvc = RLVC(db.n_features, 2, gamma=0.9).learn(db, progress=False)
     assert rlvc.history[-1].splits == 0
-    assert set(rlvc.tree.selected_features) <= set(range(6))  # no distractor selected
+    assert set(rlvc.structure.selected_features) <= set(range(6))  # no distractor selected
     chain = torch.eye(6 + 20, dtype=torch.bool)[:5]
     assert rlvc.greedy(chain).tolist() == [1, 1, 1, 1, 1]
     # Each stage's mean |TD| shrinks as aliasing is removed.
@@ -333,7 +333,7 @@ def test_learned_q_is_solved_on_the_final_classes(max_stages):
     db = synthetic_chain(n=1000)
     rlvc = RLVC(db.n_features, 2, gamma=0.9).learn(db, max_stages=max_stages, progress=False)
     assert (rlvc.history[-1].splits > 0) == (max_stages == 2)
-    classes = rlvc.tree.classify(db.presence)
+    classes = rlvc.structure.classify(db.presence)
     torch.testing.assert_close(rlvc.q, rlvc.solve(db, classes))
 
 
@@ -349,7 +349,7 @@ def test_a_later_learn_call_continues_and_on_stage_can_stop_it():
     assert len(rlvc.history) == 5
     with pytest.raises(ValueError, match="max_stages"):
         rlvc.learn(db, max_stages=0, progress=False)
-    classes = rlvc.tree.classify(db.presence)
+    classes = rlvc.structure.classify(db.presence)
     torch.testing.assert_close(rlvc.q, rlvc.solve(db, classes))
 
 
@@ -358,6 +358,6 @@ def test_rlvc_save_load_round_trip(tmp_path):
     rlvc = RLVC(db.n_features, 2, gamma=0.9).learn(db, progress=False)
     rlvc.save(tmp_path / "rlvc.pt")
     loaded = RLVC.load(tmp_path / "rlvc.pt")
-    assert torch.equal(loaded.tree.classify(db.presence), rlvc.tree.classify(db.presence))
+    assert torch.equal(loaded.structure.classify(db.presence), rlvc.structure.classify(db.presence))
     torch.testing.assert_close(loaded.q, rlvc.q)
     assert loaded.history == rlvc.history

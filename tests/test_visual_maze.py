@@ -1,5 +1,6 @@
 """The visual maze: dynamics, percepts, seeding, Gymnasium compliance, errors."""
 
+import cv2
 import gymnasium as gym
 import numpy as np
 import pytest
@@ -7,7 +8,7 @@ from gymnasium.utils.env_checker import check_env
 
 import vistask.envs  # noqa: F401  (registers the environments)
 from vistask.envs import MazeGeometry, VisualMazeEnv, VisualMazeVectorEnv
-from vistask.envs.tapestry import make_tapestry
+from vistask.envs.tapestry import load_photo, make_tapestry, photo_names
 
 OPEN = MazeGeometry(obstacles=(), exits=((0.9, 0.9, 1.0, 1.0),))
 
@@ -200,3 +201,17 @@ def test_layout_seed_draws_connected_mazes_with_their_own_tapestry():
         assert _connected(maze.geometry)
     with pytest.raises(ValueError, match="either layout_seed or obstacles"):
         VisualMazeEnv(layout_seed=1, obstacles=((0.1, 0.1, 0.2, 0.2),))
+
+
+def test_real_image_maze_moves_over_one_photograph():
+    env = VisualMazeEnv(photo="hubble_deep_field")
+    side = env.tapestry.shape[0]
+    assert env.tapestry.shape == (side, side, 3) == VisualMazeEnv().tapestry.shape
+    obs, _ = env.reset(seed=0, options={"position": [0.5, 0.5]})
+    photo = load_photo(photo_names().index("hubble_deep_field"))
+    # The centre of the maze shows the centre of the photograph (resized to the canvas).
+    centre = cv2.resize(photo[:, 64:936], (side, side), interpolation=cv2.INTER_AREA)
+    c = side // 2
+    np.testing.assert_array_equal(obs, centre[c - 32 : c + 32, c - 32 : c + 32])
+    with pytest.raises(ValueError, match="hubble_deep_field"):
+        VisualMazeEnv(photo="no-such-photo")

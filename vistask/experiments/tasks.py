@@ -17,7 +17,13 @@ import vistask.envs  # noqa: F401  (registers the environments)
 from vistask.envs import MazeOracle, VisualMazeEnv, evaluate_policy, start_positions
 from vistask.envs.car_oracle import CarOracle, evaluate_car_policy, start_states
 from vistask.envs.maze_oracle import EvaluationResult, Policy, grid_cells
+from vistask.envs.maze_plots import grid_positions
 from vistask.envs.mountain_car import MAX_POSITION, MAX_SPEED, VisualMountainCarEnv
+from vistask.envs.place_navigation import PlaceNavigationEnv, PlaceOracle
+
+# The maze's test set: an action is optimal within this share of the range of optimal values
+# (the oracle's action values come from sampled noise: exact ties are rare).
+OPTIMAL_WITHIN = 0.01
 
 
 class MazeTask:
@@ -40,6 +46,17 @@ class MazeTask:
     @staticmethod
     def true_state(env: gym.Env) -> np.ndarray:
         return env.unwrapped.position
+
+    def test_set(self, grid: int = 30) -> tuple[np.ndarray, np.ndarray]:
+        """Percepts (N, H, W, 3) at the free points of a ``grid`` x ``grid`` grid of true
+        positions, and (N, 4) bool: the actions optimal there (within ``OPTIMAL_WITHIN``)."""
+        points = grid_positions(self.env, grid)
+        points = points[self.env.geometry.is_free(points)]
+        q = self.oracle.q[(slice(None), *self.oracle.cell(points))].T  # (N, 4)
+        values = self.oracle.values
+        slack = OPTIMAL_WITHIN * (values.max() - values.min())
+        optimal = q >= q.max(axis=1, keepdims=True) - slack
+        return np.stack([self.env.percept_at(p) for p in points]), optimal
 
 
 class CarTask:
@@ -69,7 +86,35 @@ class CarTask:
         return env.unwrapped.state
 
 
-Task = MazeTask | CarTask
+class PlaceTask:
+    """Place navigation: starts are every state off the goal place, and the percepts of the
+    evaluation episodes are held-out views, never seen in training."""
+
+    def __init__(self, env: PlaceNavigationEnv) -> None:
+        self.env = env
+        self.oracle = PlaceOracle(env)
+        self.starts = env.world.start_states
+        self.oracle_return = self.oracle.optimal_return(self.starts)
+
+    def evaluate(self, policy: Policy) -> EvaluationResult:
+        """Discounted returns of a batched ``policy(percepts, states)`` from the starts."""
+        return self.oracle.evaluate(policy, self.starts)
+
+    def cells(self, states: np.ndarray, grid: int) -> np.ndarray:
+        """(N,) index of each true (place, heading): the states are already discrete."""
+        return self.env.world.index(states)
+
+    @staticmethod
+    def true_state(env: gym.Env) -> np.ndarray:
+        return env.unwrapped.state
+
+    def test_set(self) -> tuple[np.ndarray, np.ndarray]:
+        """Held-out views (N, H, W, 3) of every state and (N, 3) bool: the optimal actions."""
+        percepts, states = self.env.test_views()
+        return percepts, self.oracle.optimal_actions(states)
+
+
+Task = MazeTask | CarTask | PlaceTask
 
 
 def task_for(env_id: str, env_kwargs: dict | None = None, eval_starts: int = 100) -> Task | None:
@@ -79,6 +124,8 @@ def task_for(env_id: str, env_kwargs: dict | None = None, eval_starts: int = 100
         return MazeTask(env, eval_starts)
     if isinstance(env, VisualMountainCarEnv):
         return CarTask(env, eval_starts)
+    if isinstance(env, PlaceNavigationEnv):
+        return PlaceTask(env)
     return None
 
 

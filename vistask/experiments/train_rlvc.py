@@ -257,7 +257,7 @@ def train_rlvc(
         "rlvc_return": final_return,
         "stages": len(rlvc.history),
         "classes": rlvc.n_classes,
-        "selected_features": len(rlvc.tree.selected_features),
+        "selected_features": len(rlvc.structure.selected_features),
         "compound_features": len(rlvc.compound_features),
         "compounds_made": len(rlvc.compounds),
         "vocabulary_size": agent.extractor.n_features,

@@ -3,8 +3,10 @@
 The stage loop, top to bottom: map interactions to classes, solve Q on the estimated class MDP,
 compute TD errors, find the significant split of every aliased class (with ``use_compounds``,
 compound features for the most aliased classes that no feature splits, section 2.5.1), split,
-repeat until no class splits or the stage cap. The policy acts on Q solved on the current
-classes.
+repeat until no class splits or the stage cap. With ``compaction``, the classes are a BDD and
+interchangeable classes merge when splitting stops (section 2.5.2), and with ``compact_every``
+also every so many stages, learning going on from the merged classes. The policy acts on Q
+solved on the current classes.
 """
 
 from __future__ import annotations
@@ -19,6 +21,8 @@ import torch
 from tqdm.auto import tqdm
 
 from vistask.features import Compound
+from vistask.rlvc.bdd import ClassBDD
+from vistask.rlvc.compaction import interchangeable, merge_groups
 from vistask.rlvc.compound_search import find_compound_splits
 from vistask.rlvc.database import InteractionDatabase
 from vistask.rlvc.solver import estimate_mdp, state_values, td_errors, value_iteration
@@ -53,6 +57,7 @@ class StageRecord:
     solve_seconds: float
     split_seconds: float
     compounds: int = 0  # compounds made so far (not this stage's)
+    merged: int = 0  # classes that compaction merged away in this stage
 
 
 @dataclass
@@ -60,6 +65,7 @@ class Timing:
     solve: float = 0.0
     split: float = 0.0
     compounds: float = 0.0  # part of ``split``: the compound search
+    compaction: float = 0.0  # part of ``solve``: merging classes and solving Q again
 
 
 @dataclass
@@ -83,6 +89,13 @@ class RLVC:
             occurrences); each compound found becomes feature ``n_features``, which then
             grows.
         compound_tolerances: tolerances of candidate compounds, in units of keypoint scale.
+        compaction: hold the classes in a BDD (``ClassBDD``) and merge interchangeable
+            classes when splitting stops (False: a ``ClassTree`` that only splits).
+        compact_every: with ``compaction``, merge every this many stages as well (None:
+            only when splitting stops).
+        compaction_tolerance: classes merge when their values, and the values of their
+            greedy actions in each other, differ by at most this share of the range of the
+            class values.
     """
 
     n_features: int
@@ -92,8 +105,11 @@ class RLVC:
     min_count: int = 10
     use_compounds: bool = False
     compound_tolerances: tuple[float, ...] = (1.0,)
+    compaction: bool = False
+    compact_every: int | None = None
+    compaction_tolerance: float = 0.05
     compounds: list[Compound] = field(default_factory=list, init=False)
-    tree: ClassTree = field(init=False)
+    structure: ClassTree | ClassBDD = field(init=False)
     history: list[StageRecord] = field(default_factory=list, init=False)
     timing: Timing = field(default_factory=Timing, init=False)
     _q: torch.Tensor | None = field(default=None, init=False, repr=False)
@@ -106,6 +122,9 @@ class RLVC:
     _pending: tuple[InteractionDatabase, torch.Tensor] | None = field(
         default=None, init=False, repr=False
     )
+    # Compaction runs when classes split since the last one, at stages that are multiples of
+    # ``compact_every`` and at the end of a stage that did not split.
+    _splits_since_compaction: int = field(default=0, init=False, repr=False)
 
     def __post_init__(self) -> None:
         if self.n_features < 1 or self.n_actions < 1:
@@ -123,12 +142,18 @@ class RLVC:
             raise ValueError(
                 f"min_count must be >= 2 (a variance needs two samples), got {self.min_count}"
             )
-        self.tree = ClassTree(self.n_features)
+        if self.compact_every is not None and self.compact_every < 1:
+            raise ValueError(f"compact_every must be >= 1 or None, got {self.compact_every}")
+        if not 0 <= self.compaction_tolerance < 1:
+            raise ValueError(
+                f"compaction_tolerance must be in [0, 1), got {self.compaction_tolerance}"
+            )
+        self.structure = (ClassBDD if self.compaction else ClassTree)(self.n_features)
         self._q = torch.zeros(1, self.n_actions, dtype=torch.float64)
 
     @property
     def n_classes(self) -> int:
-        return self.tree.n_classes
+        return self.structure.n_classes
 
     @property
     def q(self) -> torch.Tensor:
@@ -164,7 +189,7 @@ class RLVC:
         on_stage: Callable[[StageRecord], bool | None] | None = None,
     ) -> RLVC:
         """Run stages on ``db`` until no class splits or ``max_stages``; continues from the
-        current tree, so it can be called again with a larger database.
+        current classes, so it can be called again with a larger database.
 
         Args:
             db: interaction database on this learner's vocabulary.
@@ -184,11 +209,14 @@ class RLVC:
     def _learn(self, db, max_stages, progress, on_stage) -> RLVC:
         self._no_compound.clear()
         rows, features = db.interaction_features()
-        classes = self.tree.classify(db.presence)
+        classes = self.structure.classify(db.presence)
         bar = tqdm(range(max_stages), desc="RLVC stages", disable=not progress, leave=False)
         for _ in bar:
             start = time.perf_counter()
             q = self.solve(db, classes)
+            merged = 0
+            if self._compaction_due():
+                classes, q, merged = self._compact(db, classes, q)
             self._q, self._pending = q, None
             s, s_next = classes[db.obs], classes[db.next_obs]
             deltas = td_errors(q, s, db.actions, db.rewards, s_next, db.terminal, self.gamma)
@@ -215,24 +243,30 @@ class RLVC:
                 self.timing.compounds += time.perf_counter() - compound_start
             for split in splits:
                 self._no_compound.discard(split.state)
-                new_class = self.tree.split(split.state, split.feature)
+                new_class = self.structure.split(split.state, split.feature)
+                self._splits_since_compaction += 1
                 # Incremental reclassification: only percepts of the split class can move.
                 moved = (classes == split.state) & db.presence[:, split.feature]
                 classes[moved] = new_class
             if splits:  # the acting Q is solved again when first needed
                 self._pending = (db, classes.clone())
+            elif self.compaction and self._splits_since_compaction:
+                # Splitting stopped: the learned classes end compacted.
+                classes, self._q, last_merged = self._compact(db, classes, q)
+                merged += last_merged
             done = time.perf_counter()
             self.timing.solve += solved - start
             self.timing.split += done - solved
             record = StageRecord(
                 stage=len(self.history),
                 classes=self.n_classes,
-                selected_features=len(self.tree.selected_features),
+                selected_features=len(self.structure.selected_features),
                 mean_abs_td=float(deltas.abs().mean()),
                 splits=len(splits),
                 solve_seconds=solved - start,
                 split_seconds=done - solved,
                 compounds=len(self.compounds),
+                merged=merged,
             )
             self.history.append(record)
             bar.set_postfix(classes=record.classes, td=f"{record.mean_abs_td:.2f}")
@@ -241,6 +275,38 @@ class RLVC:
             if not splits:
                 break
         return self
+
+    def _compaction_due(self) -> bool:
+        stage = len(self.history)
+        return (
+            self.compaction
+            and self.compact_every is not None
+            and self._splits_since_compaction > 0
+            and stage > 0
+            and stage % self.compact_every == 0
+        )
+
+    def _compact(
+        self, db: InteractionDatabase, classes: torch.Tensor, q: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor, int]:
+        """Merge interchangeable classes; returns the percepts' merged classes, their Q and
+        the number of classes merged away."""
+        start, before = time.perf_counter(), self.n_classes
+        values = state_values(q)
+        tolerance = self.compaction_tolerance * float(values.max() - values.min())
+        groups = merge_groups(q, tolerance)
+        self.structure.merge(groups)
+        classes = groups[classes]
+        # A feature whose absence only moves percepts between interchangeable merged classes
+        # is not needed either.
+        allowed = interchangeable(self.solve(db, classes), tolerance)
+        self.structure.simplify(db.presence, allowed)
+        self._splits_since_compaction = 0
+        self._no_compound.clear()  # class ids changed
+        classes = self.structure.classify(db.presence)
+        q = self.solve(db, classes)
+        self.timing.compaction += time.perf_counter() - start
+        return classes, q, before - self.n_classes
 
     def _compound_splits(
         self,
@@ -270,7 +336,7 @@ class RLVC:
             db.add_compounds(list(new))
             self.compounds += list(new)
             self.n_features += len(new)
-            self.tree.widen(self.n_features)
+            self.structure.widen(self.n_features)
         return [split for split, _ in found]
 
     @property
@@ -282,7 +348,7 @@ class RLVC:
     @property
     def compound_features(self) -> list[int]:
         """Feature ids of the compounds that the classes test."""
-        return [f for f in self.tree.selected_features if f >= self.n_words]
+        return [f for f in self.structure.selected_features if f >= self.n_words]
 
     def values(self) -> torch.Tensor:
         """(S,) V = max_a Q of every class."""
@@ -290,7 +356,7 @@ class RLVC:
 
     def greedy(self, presence: torch.Tensor) -> torch.Tensor:
         """(N, F) bool presence -> (N,) greedy actions."""
-        return self.q.argmax(dim=1)[self.tree.classify(presence)]
+        return self.q.argmax(dim=1)[self.structure.classify(presence)]
 
     def state_dict(self) -> dict:
         return {
@@ -302,9 +368,13 @@ class RLVC:
                 "min_count": self.min_count,
                 "use_compounds": self.use_compounds,
                 "compound_tolerances": list(self.compound_tolerances),
+                "compaction": self.compaction,
+                "compact_every": self.compact_every,
+                "compaction_tolerance": self.compaction_tolerance,
             },
             "compounds": [c.as_list() for c in self.compounds],
-            "tree": self.tree.state_dict(),
+            "structure": self.structure.state_dict(),
+            "splits_since_compaction": self._splits_since_compaction,
             "q": self.q,
             "history": [asdict(r) for r in self.history],
         }
@@ -312,7 +382,8 @@ class RLVC:
     @classmethod
     def from_state_dict(cls, state: dict) -> RLVC:
         rlvc = cls(**state["config"])
-        rlvc.tree = ClassTree.from_state_dict(state["tree"])
+        rlvc.structure = type(rlvc.structure).from_state_dict(state["structure"])
+        rlvc._splits_since_compaction = state["splits_since_compaction"]
         rlvc.compounds = [Compound.from_list(c) for c in state.get("compounds", [])]
         rlvc._q = state["q"]
         rlvc.history = [StageRecord(**r) for r in state["history"]]

@@ -7,13 +7,8 @@ stay stable across stages (and Q values of untouched classes keep their meaning)
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-from pathlib import Path
-
 import numpy as np
 import torch
-
-from vistask.features import Compound, VisualFeatureExtractor, check_image
 
 
 class ClassTree:
@@ -52,8 +47,8 @@ class ClassTree:
     @property
     def depth(self) -> int:
         depth = {0: 0}
-        for node, f in enumerate(self.feature):
-            if f >= 0:
+        for node, f in enumerate(self.feature):  # children come after their parents
+            if f >= 0 and node in depth:
                 depth[self.absent[node]] = depth[self.present[node]] = depth[node] + 1
         return max(depth.values())
 
@@ -81,6 +76,24 @@ class ClassTree:
         self._leaf_of_class.append(present)
         self._tables.clear()
         return new_class
+
+    def bypass(self, features: list[int]) -> None:
+        """Replace every test of these features by its "absent" branch (the tree then
+        classifies as if they were never present); classes below a "present" branch of them
+        are no longer reached."""
+        drop = set(features)
+        for node in range(len(self.feature)):
+            while self.feature[node] in drop:
+                absent = self.absent[node]
+                self.feature[node], self.leaf_class[node] = (
+                    self.feature[absent],
+                    self.leaf_class[absent],
+                )
+                self.absent[node], self.present[node] = self.absent[absent], self.present[absent]
+                self.feature[absent] = self.leaf_class[absent] = -1  # absorbed into ``node``
+                if self.leaf_class[node] >= 0:
+                    self._leaf_of_class[self.leaf_class[node]] = node
+        self._tables.clear()
 
     def classify(self, presence: torch.Tensor) -> torch.Tensor:
         """(N, F) bool presence -> (N,) long class ids, all rows at once (one step per level)."""
@@ -131,70 +144,3 @@ class ClassTree:
         leaves = {c: node for node, c in enumerate(tree.leaf_class) if c >= 0}
         tree._leaf_of_class = [leaves[c] for c in range(len(leaves))]
         return tree
-
-
-class VisualClassifier:
-    """Image -> visual class: a feature extractor, the compounds learned on its vocabulary, and
-    a class tree over both.
-
-    Example:
-        >>> classifier = VisualClassifier(extractor, tree, compounds)
-        >>> classifier(image)          # int class of one (H, W, 3) uint8 image
-        >>> classifier.classify(images)  # (N,) long
-        >>> classifier.save("classes.pt"); VisualClassifier.load("classes.pt")
-    """
-
-    def __init__(
-        self,
-        extractor: VisualFeatureExtractor,
-        tree: ClassTree,
-        compounds: Sequence[Compound] = (),
-    ) -> None:
-        if tree.n_features != extractor.n_features + len(compounds):
-            raise ValueError(
-                f"tree tests {tree.n_features} features but the vocabulary has "
-                f"{extractor.n_features} and {len(compounds)} compounds: they were not learned "
-                "together"
-            )
-        self.extractor, self.tree, self.compounds = extractor, tree, list(compounds)
-
-    @property
-    def n_classes(self) -> int:
-        return self.tree.n_classes
-
-    def classify(self, images: list[np.ndarray]) -> torch.Tensor:
-        return self.tree.classify(self.extractor.presence(images, self.compounds))
-
-    def __call__(self, image: np.ndarray) -> int:
-        return int(self.classify([check_image(image)])[0])
-
-    def state_dict(self) -> dict:
-        return {
-            "extractor": self.extractor.state_dict(),
-            "fingerprint": self.extractor.fingerprint,
-            "compounds": [c.as_list() for c in self.compounds],
-            "tree": self.tree.state_dict(),
-        }
-
-    @classmethod
-    def from_state_dict(
-        cls, state: dict, extractor: VisualFeatureExtractor | None = None
-    ) -> VisualClassifier:
-        """Rebuild; with ``extractor`` given, check that it is the vocabulary the tree was
-        learned on (a tree is meaningless on another vocabulary)."""
-        if extractor is None:
-            extractor = VisualFeatureExtractor.from_state_dict(state["extractor"])
-        elif extractor.fingerprint != state["fingerprint"]:
-            raise ValueError(
-                f"vocabulary mismatch: the class tree was learned on vocabulary "
-                f"{state['fingerprint']}, got {extractor.fingerprint}"
-            )
-        compounds = [Compound.from_list(c) for c in state.get("compounds", [])]
-        return cls(extractor, ClassTree.from_state_dict(state["tree"]), compounds)
-
-    def save(self, path: str | Path) -> None:
-        torch.save(self.state_dict(), path)
-
-    @classmethod
-    def load(cls, path: str | Path, extractor: VisualFeatureExtractor | None = None):
-        return cls.from_state_dict(torch.load(path, weights_only=True), extractor)

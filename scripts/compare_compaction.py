@@ -1,0 +1,56 @@
+"""Tree RLVC against BDD RLVC (compaction, paper Fig. 9): classes, features, return, test error.
+
+python scripts/compare_compaction.py                                   # the visual maze
+python scripts/compare_compaction.py --env-kwargs '{"photo": "hubble_deep_field"}'  # Fig. 5
+python scripts/compare_compaction.py --env vistask/PlaceNavigation-v0 --seeds 0 1 2 3 4
+"""
+
+import argparse
+import json
+
+from vistask.experiments.compare_compaction import compare_compaction
+
+
+def positive_int(text: str) -> int:
+    value = int(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be a positive integer, got {text}")
+    return value
+
+
+def tolerance(text: str) -> float:
+    value = float(text)
+    if not 0 <= value < 1:
+        raise argparse.ArgumentTypeError(f"must be in [0, 1), got {text}")
+    return value
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--env", default="vistask/VisualMaze-v0", help="Gymnasium env id")
+    parser.add_argument("--env-kwargs", type=json.loads, default={}, help="JSON dict for gym.make")
+    parser.add_argument("--seeds", type=int, nargs="+", default=[0])
+    parser.add_argument("--interactions", type=positive_int, default=30_000)
+    parser.add_argument(
+        "--compact-every", type=positive_int, default=None, help="also compact every N stages"
+    )
+    parser.add_argument("--tolerance", type=tolerance, default=0.05)
+    parser.add_argument("--out", default=None, help="default runs/compare_compaction-<time>")
+    parser.add_argument("--no-progress", action="store_true")
+    args = parser.parse_args()
+    compare_compaction(
+        env_id=args.env,
+        env_kwargs=args.env_kwargs,
+        seeds=args.seeds,
+        interactions=args.interactions,
+        compact_every=args.compact_every,
+        tolerance=args.tolerance,
+        out=args.out,
+        progress=not args.no_progress,
+    )
+
+
+if __name__ == "__main__":
+    main()

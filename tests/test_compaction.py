@@ -1,0 +1,180 @@
+"""BDD classes and compaction: merging, classification against the tree and dd, persistence."""
+
+import numpy as np
+import pytest
+import torch
+
+from vistask.rlvc import (
+    RLVC,
+    ClassBDD,
+    ClassTree,
+    InteractionDatabase,
+    interchangeable,
+    merge_groups,
+)
+from vistask.rlvc.solver import state_values
+
+
+def random_q(n_states: int, n_actions: int, seed: int) -> torch.Tensor:
+    rng = np.random.default_rng(seed)
+    q = rng.normal(0, 1, (n_states, n_actions)).round(1)  # ties, as value iteration gives
+    q[rng.random((n_states, n_actions)) < 0.1] = -np.inf  # actions a class never tried
+    return torch.from_numpy(q)
+
+
+def test_interchangeable_equals_its_definition_pair_by_pair():
+    q, tolerance = random_q(40, 3, seed=0), 0.3
+    v, greedy = state_values(q), q.argmax(dim=1)
+    tried = torch.isfinite(q).any(dim=1)
+    expected = torch.zeros(40, 40, dtype=torch.bool)
+    for i in range(40):
+        for j in range(40):
+            expected[i, j] = i == j or bool(
+                tried[i]
+                and tried[j]
+                and abs(v[i] - v[j]) <= tolerance
+                and q[j, greedy[i]] >= v[j] - tolerance
+                and q[i, greedy[j]] >= v[i] - tolerance
+            )
+    assert torch.equal(interchangeable(q, tolerance), expected)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_merging_keeps_every_greedy_action_within_the_tolerance(seed):
+    q, tolerance = random_q(60, 4, seed), 0.5
+    groups = merge_groups(q, tolerance)
+    assert sorted(set(groups.tolist())) == list(range(int(groups.max()) + 1))
+    assert int(groups.max()) + 1 < 60  # something merged
+    v, greedy = state_values(q), q.argmax(dim=1)
+    for c in range(60):
+        for m in (groups == groups[c]).nonzero().flatten().tolist():
+            # Acting in class c with any member's greedy action loses at most the tolerance.
+            assert q[c, greedy[m]] >= v[c] - tolerance
+            assert abs(v[c] - v[m]) <= tolerance
+    # A zero tolerance merges only classes with equal values and the same greedy action.
+    exact = merge_groups(q, 0.0)
+    for c, m in torch.combinations(torch.arange(60)).tolist():
+        if exact[c] == exact[m]:
+            assert v[c] == v[m]
+
+
+def random_splits(n_features: int, n_splits: int, seed: int) -> tuple[ClassTree, ClassBDD]:
+    rng = np.random.default_rng(seed)
+    tree, bdd = ClassTree(n_features), ClassBDD(n_features)
+    for _ in range(n_splits):
+        c, f = int(rng.integers(tree.n_classes)), int(rng.integers(n_features))
+        assert tree.split(c, f) == bdd.split(c, f)
+    return tree, bdd
+
+
+def test_bdd_classification_equals_the_trees_before_any_compaction():
+    tree, bdd = random_splits(30, 60, seed=0)
+    presence = torch.from_numpy(np.random.default_rng(1).random((3000, 30)) < 0.3)
+    assert torch.equal(bdd.classify(presence), tree.classify(presence))
+    assert set(bdd.selected_features) <= set(tree.selected_features)
+
+
+@pytest.mark.parametrize("simplified", [False, True])
+def test_vectorized_bdd_classification_equals_dds_own_evaluation(simplified):
+    _, bdd = random_splits(16, 40, seed=2)
+    groups = torch.unique(torch.randint(0, 9, (bdd.n_classes,)), return_inverse=True)[1]
+    bdd.merge(groups)  # disjunctions
+    if simplified:  # cofactors in the BDD, bypassed tests in the compiled tree
+        seen = torch.from_numpy(np.random.default_rng(8).random((40, 16)) < 0.2)
+        assert bdd.simplify(seen)
+    presence = torch.from_numpy(np.random.default_rng(3).random((300, 16)) < 0.5)
+    classes = bdd.classify(presence)
+    declared = set(bdd.bdd.vars)
+    for row, c in zip(presence.tolist(), classes.tolist(), strict=True):
+        values = {f"f{i}": bit for i, bit in enumerate(row) if f"f{i}" in declared}
+        holds = [bdd.bdd.let(values, u) == bdd.bdd.true for u in bdd.functions]
+        assert holds.index(True) == c and sum(holds) == 1  # the classes partition
+
+
+def test_merge_maps_classes_to_their_groups_and_drops_features_no_class_needs():
+    _, bdd = random_splits(20, 30, seed=4)
+    presence = torch.from_numpy(np.random.default_rng(5).random((2000, 20)) < 0.4)
+    before = bdd.classify(presence)
+    groups = torch.unique(torch.randint(0, 5, (bdd.n_classes,)), return_inverse=True)[1]
+    bdd.merge(groups)
+    assert bdd.n_classes == int(groups.max()) + 1
+    assert torch.equal(bdd.classify(presence), groups[before])
+    siblings = ClassBDD(20)
+    siblings.split(0, 7)
+    siblings.split(1, 3)
+    siblings.merge(torch.tensor([0, 0, 1]))  # {7 absent or 7 present and 3 absent}, {7 and 3}
+    assert siblings.selected_features == [3, 7]
+    siblings.merge(torch.tensor([0, 0]))
+    assert siblings.selected_features == [] and siblings.n_classes == 1
+    with pytest.raises(ValueError, match="without gaps"):
+        bdd.merge(torch.zeros(bdd.n_classes, dtype=torch.long) + 1)
+
+
+def test_simplify_keeps_the_class_of_every_given_percept_and_drops_features():
+    _, bdd = random_splits(20, 40, seed=9)
+    bdd.merge(torch.unique(torch.randint(0, 6, (bdd.n_classes,)), return_inverse=True)[1])
+    seen = torch.from_numpy(np.random.default_rng(10).random((60, 20)) < 0.2)
+    before, features = bdd.classify(seen), bdd.selected_features
+    dropped = bdd.simplify(seen)
+    assert dropped and torch.equal(bdd.classify(seen), before)
+    assert bdd.selected_features == sorted(set(features) - set(dropped))
+
+
+def test_bdd_state_dict_round_trip():
+    _, bdd = random_splits(25, 50, seed=6)
+    bdd.merge(torch.unique(torch.randint(0, 12, (bdd.n_classes,)), return_inverse=True)[1])
+    bdd.simplify(torch.from_numpy(np.random.default_rng(11).random((50, 25)) < 0.2))
+    bdd.split(0, 3)  # a split after the compaction
+    loaded = ClassBDD.from_state_dict(bdd.state_dict())
+    presence = torch.from_numpy(np.random.default_rng(7).random((2000, 25)) < 0.5)
+    assert torch.equal(loaded.classify(presence), bdd.classify(presence))
+    assert loaded.selected_features == bdd.selected_features
+
+
+def two_faced_chain(n_states: int = 5, n: int = 4000, seed: int = 0) -> InteractionDatabase:
+    """A chain where each state shows one of two features of its own: the tree needs a class
+    per feature, compaction can merge the two faces of a state into one class."""
+    rng = np.random.default_rng(seed)
+    states = rng.integers(0, n_states, n)
+    actions = rng.integers(0, 2, n)  # 0: left, 1: right
+    nxt = np.clip(states + np.where(actions == 1, 1, -1), 0, n_states - 1)
+    terminal = nxt == n_states - 1
+    presence = np.zeros((2 * n, 2 * n_states), bool)
+    presence[np.arange(n), 2 * states + rng.integers(0, 2, n)] = True
+    presence[n + np.arange(n), 2 * nxt + rng.integers(0, 2, n)] = True
+    return InteractionDatabase(
+        torch.from_numpy(presence),
+        torch.arange(n),
+        torch.from_numpy(actions),
+        torch.from_numpy(np.where(terminal, 10.0, 0.0)),
+        torch.arange(n, 2 * n),
+        torch.from_numpy(terminal),
+    )
+
+
+def test_compaction_merges_the_faces_of_each_state_and_keeps_the_policy(tmp_path):
+    db = two_faced_chain()
+    tree = RLVC(db.n_features, 2, gamma=0.9).learn(db, progress=False)
+    bdd = RLVC(
+        db.n_features, 2, gamma=0.9, compaction=True, compact_every=5, compaction_tolerance=0.01
+    )
+    bdd.learn(db, progress=False)
+    assert isinstance(bdd.structure, ClassBDD)
+    assert sum(r.merged for r in bdd.history) > 0
+    assert bdd.n_classes < tree.n_classes
+    faces = torch.eye(db.n_features, dtype=torch.bool)[:8]  # both faces of states 0..3
+    assert bdd.greedy(faces).tolist() == tree.greedy(faces).tolist() == [1] * 8
+    classes = bdd.structure.classify(db.presence)
+    torch.testing.assert_close(bdd.q, bdd.solve(db, classes))  # Q of the final classes
+    bdd.save(tmp_path / "rlvc.pt")
+    loaded = RLVC.load(tmp_path / "rlvc.pt")
+    assert isinstance(loaded.structure, ClassBDD)
+    assert torch.equal(loaded.structure.classify(db.presence), classes)
+    assert loaded.history == bdd.history
+
+
+def test_compaction_settings_are_checked():
+    with pytest.raises(ValueError, match="compact_every"):
+        RLVC(10, 2, 0.9, compact_every=0)
+    with pytest.raises(ValueError, match="compaction_tolerance"):
+        RLVC(10, 2, 0.9, compaction=True, compaction_tolerance=1.5)

@@ -1,0 +1,181 @@
+"""Tree RLVC against BDD RLVC (compaction, paper section 2.5.2 and Fig. 9) on an env with an
+oracle: classes, selected features, return against the oracle, test error on held-out percepts,
+time; and the saw-tooth of classes and features per stage.
+
+Example:
+    >>> summary = compare_compaction("vistask/PlaceNavigation-v0", seeds=[0, 1])
+    >>> summary["bdd"]["test_error"]
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import gymnasium as gym
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt
+import numpy as np
+from PIL import Image
+
+import vistask.envs  # noqa: F401  (registers the environments)
+from vistask.agents import RLVCAgent
+from vistask.envs.place_navigation import draw_world, view_sheet
+from vistask.experiments.tasks import PlaceTask, task_for
+from vistask.experiments.train_rlvc import agent_policy
+from vistask.runs import print_table, run_dir, write_summary
+
+METHODS = ("tree", "bdd")
+MEASURES = ("classes", "selected_features", "return_ratio", "test_error", "seconds")
+
+
+def test_error(agent: RLVCAgent, percepts: np.ndarray, optimal: np.ndarray) -> float:
+    """Share of percepts (N, H, W, 3) whose greedy action is not optimal ((N, A) bool)."""
+    actions, _ = agent.predict(percepts)
+    return float(1 - optimal[np.arange(len(actions)), actions].mean())
+
+
+def run_method(
+    method: str,
+    env_id: str,
+    env_kwargs: dict,
+    interactions: int,
+    seed: int,
+    compact_every: int | None,
+    tolerance: float,
+    out: Path,
+    progress: bool,
+) -> tuple[dict, list[dict]]:
+    """Learn one agent; returns its measures and its per-stage (classes, features) history."""
+    env = gym.make(env_id, **env_kwargs)
+    agent = RLVCAgent(
+        env,
+        compaction=method == "bdd",
+        compact_every=compact_every,
+        compaction_tolerance=tolerance,
+        seed=seed,
+        tensorboard_log=out / "tensorboard",
+    )
+    start = time.perf_counter()
+    agent.learn(interactions, tb_log_name=f"{method}-seed{seed}", progress_bar=progress)
+    seconds = time.perf_counter() - start
+    task = task_for(env_id, env_kwargs)
+    percepts, optimal = task.test_set()
+    agent.save(out / f"{method}-seed{seed}.pt")
+    rlvc = agent.rlvc
+    result = {
+        "classes": rlvc.n_classes,
+        "selected_features": len(rlvc.structure.selected_features),
+        "return_ratio": task.evaluate(agent_policy(agent)).mean / task.oracle_return,
+        "test_error": test_error(agent, percepts, optimal),
+        "seconds": seconds,
+        "compaction_seconds": rlvc.timing.compaction,
+        "stages": len(rlvc.history),
+    }
+    history = [{"classes": r.classes, "features": r.selected_features} for r in rlvc.history]
+    return result, history
+
+
+def plot_sawtooth(histories: dict[str, list[list[dict]]], path: Path) -> Path:
+    """Classes (left) and selected features (right) per stage, every seed, both methods."""
+    fig, axes = plt.subplots(1, 2, figsize=(10, 3.6))
+    colours = {"tree": "tab:blue", "bdd": "tab:orange"}
+    for method, runs in histories.items():
+        for i, history in enumerate(runs):
+            for ax, key in zip(axes, ("classes", "features"), strict=True):
+                ax.plot(
+                    [h[key] for h in history],
+                    color=colours[method],
+                    alpha=0.8,
+                    lw=1,
+                    label=method if i == 0 else None,
+                )
+    for ax, title in zip(axes, ("visual classes", "selected features"), strict=True):
+        ax.set_xlabel("stage")
+        ax.set_title(title)
+        ax.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def compare_compaction(
+    env_id: str = "vistask/VisualMaze-v0",
+    env_kwargs: dict | None = None,
+    seeds: list[int] | tuple[int, ...] = (0,),
+    interactions: int = 30_000,
+    compact_every: int | None = None,
+    tolerance: float = 0.05,
+    out: str | Path | None = None,
+    progress: bool = True,
+) -> dict:
+    """Learn tree RLVC and BDD RLVC with the same seeds on an env with an oracle.
+
+    Both learn with ``RLVCAgent``'s defaults; the BDD agent also compacts when splitting
+    stops (and every ``compact_every`` stages if given) with ``tolerance``. Writes
+    ``summary.json`` (per method: the mean of each measure over seeds and the per-seed values),
+    ``sawtooth.png`` and, for place navigation, ``world.png`` and ``views.png`` to ``out``.
+
+    Args:
+        env_id, env_kwargs: an env that ``task_for`` knows (the maze, its real-image option,
+            place navigation).
+        seeds: one run per method and seed.
+        interactions: interactions per run.
+        compact_every, tolerance: the BDD agent's ``compact_every`` and
+            ``compaction_tolerance``.
+        out: output folder (default ``runs/compare_compaction-<time>``).
+        progress: show progress bars.
+    """
+    env_kwargs = env_kwargs or {}
+    task = task_for(env_id, env_kwargs)
+    if task is None or not hasattr(task, "test_set"):
+        raise ValueError(
+            f"{env_id} has no oracle test set: use vistask/VisualMaze-v0 (optionally with "
+            '{"photo": "hubble_deep_field"}) or vistask/PlaceNavigation-v0'
+        )
+    out = run_dir("compare_compaction", out)
+    runs = {m: [] for m in METHODS}
+    histories = {m: [] for m in METHODS}
+    for seed in seeds:
+        for method in METHODS:
+            result, history = run_method(
+                method,
+                env_id,
+                env_kwargs,
+                interactions,
+                seed,
+                compact_every,
+                tolerance,
+                out,
+                progress,
+            )
+            runs[method].append({"seed": seed, **result})
+            histories[method].append(history)
+    summary = {
+        "env_id": env_id,
+        "env_kwargs": env_kwargs,
+        "interactions": interactions,
+        "compact_every": compact_every,
+        "tolerance": tolerance,
+        "seeds": list(seeds),
+    }
+    for method in METHODS:
+        means = {key: float(np.mean([r[key] for r in runs[method]])) for key in MEASURES}
+        summary[method] = {**means, "runs": runs[method]}
+    summary["compaction_share_of_time"] = float(
+        np.mean([r["compaction_seconds"] / r["seconds"] for r in runs["bdd"]])
+    )
+    summary["pictures"] = {"sawtooth": str(plot_sawtooth(histories, out / "sawtooth.png"))}
+    if isinstance(task, PlaceTask):
+        Image.fromarray(draw_world(task.env)).save(out / "world.png")
+        state = task.starts[len(task.starts) // 2]
+        Image.fromarray(view_sheet(task.env, state)).save(out / "views.png")
+        summary["pictures"] |= {"world": str(out / "world.png"), "views": str(out / "views.png")}
+    write_summary(out, summary)
+    for method in METHODS:
+        print_table({key: summary[method][key] for key in MEASURES}, title=f"{method} RLVC")
+    print(f"results in {out}")
+    return summary

@@ -1,0 +1,83 @@
+"""Image -> visual class: the vocabulary, the learned compounds and the class structure."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from vistask.features import Compound, VisualFeatureExtractor, check_image
+from vistask.rlvc.bdd import ClassBDD
+from vistask.rlvc.tree import ClassTree
+
+
+class VisualClassifier:
+    """Image -> visual class: a feature extractor, the compounds learned on its vocabulary, and
+    the class structure over both (a ``ClassTree`` or a ``ClassBDD``).
+
+    Example:
+        >>> classifier = VisualClassifier(extractor, structure, compounds)
+        >>> classifier(image)          # int class of one (H, W, 3) uint8 image
+        >>> classifier.classify(images)  # (N,) long
+        >>> classifier.save("classes.pt"); VisualClassifier.load("classes.pt")
+    """
+
+    def __init__(
+        self,
+        extractor: VisualFeatureExtractor,
+        structure: ClassTree | ClassBDD,
+        compounds: Sequence[Compound] = (),
+    ) -> None:
+        if structure.n_features != extractor.n_features + len(compounds):
+            raise ValueError(
+                f"the classes test {structure.n_features} features but the vocabulary has "
+                f"{extractor.n_features} and {len(compounds)} compounds: they were not learned "
+                "together"
+            )
+        self.extractor, self.structure = extractor, structure
+        self.compounds = list(compounds)
+
+    @property
+    def n_classes(self) -> int:
+        return self.structure.n_classes
+
+    def classify(self, images: list[np.ndarray]) -> torch.Tensor:
+        return self.structure.classify(self.extractor.presence(images, self.compounds))
+
+    def __call__(self, image: np.ndarray) -> int:
+        return int(self.classify([check_image(image)])[0])
+
+    def state_dict(self) -> dict:
+        return {
+            "extractor": self.extractor.state_dict(),
+            "fingerprint": self.extractor.fingerprint,
+            "compounds": [c.as_list() for c in self.compounds],
+            "structure": self.structure.state_dict(),
+            "kind": type(self.structure).__name__,
+        }
+
+    @classmethod
+    def from_state_dict(
+        cls, state: dict, extractor: VisualFeatureExtractor | None = None
+    ) -> VisualClassifier:
+        """Rebuild; with ``extractor`` given, check that it is the vocabulary the tree was
+        learned on (a tree is meaningless on another vocabulary)."""
+        if extractor is None:
+            extractor = VisualFeatureExtractor.from_state_dict(state["extractor"])
+        elif extractor.fingerprint != state["fingerprint"]:
+            raise ValueError(
+                f"vocabulary mismatch: the classes were learned on vocabulary "
+                f"{state['fingerprint']}, got {extractor.fingerprint}"
+            )
+        compounds = [Compound.from_list(c) for c in state.get("compounds", [])]
+        kinds = {"ClassTree": ClassTree, "ClassBDD": ClassBDD}
+        return cls(extractor, kinds[state["kind"]].from_state_dict(state["structure"]), compounds)
+
+    def save(self, path: str | Path) -> None:
+        torch.save(self.state_dict(), path)
+
+    @classmethod
+    def load(cls, path: str | Path, extractor: VisualFeatureExtractor | None = None):
+        return cls.from_state_dict(torch.load(path, weights_only=True), extractor)

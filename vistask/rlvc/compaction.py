@@ -1,0 +1,75 @@
+"""Which visual classes compaction merges (paper section 2.5.2): classes whose optimal values
+are close and whose greedy actions are interchangeable.
+
+Classes s1 and s2 are interchangeable within a tolerance t when
+
+    |V(s1) - V(s2)| <= t,  Q(s2, a1) >= V(s2) - t  and  Q(s1, a2) >= V(s1) - t,
+
+with a_i the greedy action of s_i. The relation is not transitive, so groups are built
+greedily as cliques: every pair inside a group is interchangeable, and any member's greedy
+action loses at most t in every other member.
+"""
+
+from __future__ import annotations
+
+import torch
+
+from vistask.rlvc.solver import state_values
+
+
+def interchangeable(q: torch.Tensor, tolerance: float) -> torch.Tensor:
+    """(S, A) Q -> (S, S) bool: classes i and j are interchangeable within ``tolerance``.
+
+    Actions a class never tried (Q = -inf) never count as interchangeable, and neither does a
+    class with no tried action at all.
+
+    Example:
+        >>> q = torch.tensor([[1.0, 0.0], [0.95, 0.0], [0.0, 1.0]])
+        >>> interchangeable(q, 0.1)
+        tensor([[ True,  True, False],
+                [ True,  True, False],
+                [False, False,  True]])
+    """
+    if q.ndim != 2:
+        raise ValueError(f"q must be (S, A), got shape {tuple(q.shape)}")
+    if tolerance < 0:
+        raise ValueError(f"tolerance must be >= 0, got {tolerance}")
+    v, greedy = state_values(q), q.argmax(dim=1)
+    tried = torch.isfinite(q).any(dim=1)
+    # other[i, j] = Q(s_i, a_j): the value of class j's greedy action taken in class i.
+    other = q[:, greedy]
+    fits = other >= v[:, None] - tolerance
+    close = (v[:, None] - v[None, :]).abs() <= tolerance
+    return close & fits & fits.T & tried[:, None] & tried[None, :] | torch.eye(len(q)).bool()
+
+
+def merge_groups(q: torch.Tensor, tolerance: float) -> torch.Tensor:
+    """(S, A) Q -> (S,) long group of every class, groups numbered 0..G-1.
+
+    Classes are visited from the highest value down; each joins the first group all of whose
+    members it is interchangeable with, or starts a new one.
+
+    Example:
+        >>> merge_groups(torch.tensor([[1.0, 0.0], [0.95, 0.0], [0.0, 1.0]]), 0.1)
+        tensor([0, 0, 1])
+    """
+    pairs = interchangeable(q, tolerance).numpy()
+    n = len(pairs)
+    group = torch.full((n,), -1, dtype=torch.long)
+    # fits_all[g, c]: class c is interchangeable with every member of group g so far.
+    fits_all = pairs.copy()  # at most one group per class, started from that class's row
+    n_groups = 0
+    for c in torch.argsort(state_values(q), descending=True, stable=True).tolist():
+        open_groups = fits_all[:n_groups, c].nonzero()[0]
+        if len(open_groups):
+            g = int(open_groups[0])
+            fits_all[g] &= pairs[c]
+        else:
+            g = n_groups
+            fits_all[g] = pairs[c]
+            n_groups += 1
+        group[c] = g
+    return group
+
+
+__all__ = ["interchangeable", "merge_groups"]
