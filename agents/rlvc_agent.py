@@ -74,11 +74,11 @@ class RLVCAgent(SB3Model):
             feature splits. Off by default: on the maze
             they lowered the mean return (0.917 of the oracle's against 0.927, seeds 0-4);
             where a relation carries the state (a gauge's needle), they are what reads it.
-        compaction: hold the classes in a BDD and merge classes with close values and
-            interchangeable greedy actions when splitting stops, then drop the features that
-            no percept seen needs (False: a decision tree that only splits).
+        compaction: hold the classes in a BDD; when the stages of a database end, merge
+            classes with close values and interchangeable greedy actions, then drop the
+            features that no percept seen needs (False: a decision tree that only splits).
         compact_every: with ``compaction``, merge every this many stages as well (None:
-            only when splitting stops).
+            only when the stages of a database end).
         compaction_tolerance: merge classes whose values, and the values of their greedy
             actions in each other, differ by at most this share of the range of values.
         gamma: discount (default: the env's ``gamma`` attribute if it has one, else 0.99).
@@ -100,7 +100,7 @@ class RLVCAgent(SB3Model):
         compounds: bool = False,
         compaction: bool = False,
         compact_every: int | None = None,
-        compaction_tolerance: float = 0.05,
+        compaction_tolerance: float = 0.02,
         gamma: float | None = None,
         tensorboard_log: str | Path | None = None,
         seed: int = 0,

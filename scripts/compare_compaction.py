@@ -2,7 +2,7 @@
 
 python scripts/compare_compaction.py                                   # the visual maze
 python scripts/compare_compaction.py --env-kwargs '{"photo": "hubble_deep_field"}'  # Fig. 5
-python scripts/compare_compaction.py --env vistask/PlaceNavigation-v0 --seeds 0 1 2 3 4
+python scripts/compare_compaction.py --env vistask/PlaceNavigation-v0 --max-stages 2000
 """
 
 import argparse
@@ -36,7 +36,8 @@ def main() -> None:
     parser.add_argument(
         "--compact-every", type=positive_int, default=None, help="also compact every N stages"
     )
-    parser.add_argument("--tolerance", type=tolerance, default=0.05)
+    parser.add_argument("--tolerance", type=tolerance, default=0.02)
+    parser.add_argument("--max-stages", type=positive_int, default=300, help="agents' stage cap")
     parser.add_argument("--out", default=None, help="default runs/compare_compaction-<time>")
     parser.add_argument("--no-progress", action="store_true")
     args = parser.parse_args()
@@ -47,6 +48,7 @@ def main() -> None:
         interactions=args.interactions,
         compact_every=args.compact_every,
         tolerance=args.tolerance,
+        max_stages=args.max_stages,
         out=args.out,
         progress=not args.no_progress,
     )

@@ -45,6 +45,7 @@ def run_method(
     seed: int,
     compact_every: int | None,
     tolerance: float,
+    max_stages: int,
     out: Path,
     progress: bool,
 ) -> tuple[dict, list[dict]]:
@@ -55,6 +56,7 @@ def run_method(
         compaction=method == "bdd",
         compact_every=compact_every,
         compaction_tolerance=tolerance,
+        max_stages=max_stages,
         seed=seed,
         tensorboard_log=out / "tensorboard",
     )
@@ -108,13 +110,14 @@ def compare_compaction(
     seeds: list[int] | tuple[int, ...] = (0,),
     interactions: int = 30_000,
     compact_every: int | None = None,
-    tolerance: float = 0.05,
+    tolerance: float = 0.02,
+    max_stages: int = 300,
     out: str | Path | None = None,
     progress: bool = True,
 ) -> dict:
     """Learn tree RLVC and BDD RLVC with the same seeds on an env with an oracle.
 
-    Both learn with ``RLVCAgent``'s defaults; the BDD agent also compacts when splitting
+    Both learn with ``RLVCAgent``'s defaults; the BDD agent also compacts when learning
     stops (and every ``compact_every`` stages if given) with ``tolerance``. Writes
     ``summary.json`` (per method: the mean of each measure over seeds and the per-seed values),
     ``sawtooth.png`` and, for place navigation, ``world.png`` and ``views.png`` to ``out``.
@@ -126,6 +129,7 @@ def compare_compaction(
         interactions: interactions per run.
         compact_every, tolerance: the BDD agent's ``compact_every`` and
             ``compaction_tolerance``.
+        max_stages: both agents' stage cap (``RLVCAgent``'s ``max_stages``).
         out: output folder (default ``runs/compare_compaction-<time>``).
         progress: show progress bars.
     """
@@ -149,6 +153,7 @@ def compare_compaction(
                 seed,
                 compact_every,
                 tolerance,
+                max_stages,
                 out,
                 progress,
             )
@@ -160,6 +165,7 @@ def compare_compaction(
         "interactions": interactions,
         "compact_every": compact_every,
         "tolerance": tolerance,
+        "max_stages": max_stages,
         "seeds": list(seeds),
     }
     for method in METHODS:

@@ -57,7 +57,7 @@ class ClassBDD:
         self.bdd.configure(reordering=False)
         self.functions = [self.bdd.true]
         self.leaves = ClassTree(n_features)  # the compiled classifier; its classes are leaves
-        self.class_of_leaf = [0]
+        self.class_of_leaf = np.zeros(1, dtype=np.int64)
         self._selected: set[int] = set()
 
     @property
@@ -96,9 +96,10 @@ class ClassBDD:
         self.functions[class_id] = function & ~test
         self.functions.append(function & test)
         new_class = self.n_classes - 1
-        for leaf in [i for i, c in enumerate(self.class_of_leaf) if c == class_id]:
+        leaves = np.flatnonzero(self.class_of_leaf == class_id)
+        for leaf in leaves.tolist():
             self.leaves.split(leaf, feature)
-            self.class_of_leaf.append(new_class)
+        self.class_of_leaf = np.concatenate([self.class_of_leaf, np.full(len(leaves), new_class)])
         self._selected.add(feature)
         return new_class
 
@@ -114,7 +115,7 @@ class ClassBDD:
         for function, g in zip(self.functions, groups.tolist(), strict=True):
             merged[g] = merged[g] | function
         self.functions = merged
-        self.class_of_leaf = groups[self.class_of_leaf].tolist()
+        self.class_of_leaf = groups.numpy()[self.class_of_leaf]
         self._update_selected()
 
     def simplify(self, presence: torch.Tensor, allowed: torch.Tensor | None = None) -> list[int]:
@@ -152,22 +153,23 @@ class ClassBDD:
     def classify(self, presence: torch.Tensor) -> torch.Tensor:
         """(N, F) bool presence -> (N,) long class ids, all rows at once."""
         leaves = self.leaves.classify(presence)
-        return torch.as_tensor(self.class_of_leaf, device=presence.device)[leaves]
+        return torch.from_numpy(self.class_of_leaf).to(presence.device)[leaves]
 
     def _class_ids(self, bits: np.ndarray) -> np.ndarray:
         return self.classify(torch.from_numpy(bits)).numpy()
 
     def state_dict(self) -> dict:
-        return {"leaves": self.leaves.state_dict(), "class_of_leaf": list(self.class_of_leaf)}
+        return {"leaves": self.leaves.state_dict(), "class_of_leaf": self.class_of_leaf.tolist()}
 
     @classmethod
     def from_state_dict(cls, state: dict) -> ClassBDD:
         """Rebuild; each class's function is the disjunction of its leaves' paths."""
         leaves = ClassTree.from_state_dict(state["leaves"])
         classes = cls(leaves.n_features)
-        classes.leaves, classes.class_of_leaf = leaves, list(state["class_of_leaf"])
+        classes.leaves = leaves
+        classes.class_of_leaf = np.array(state["class_of_leaf"], dtype=np.int64)
         bdd = classes.bdd
-        functions = [bdd.false] * (max(classes.class_of_leaf) + 1)
+        functions = [bdd.false] * (int(classes.class_of_leaf.max()) + 1)
         paths = {0: bdd.true}
         for node, feature in enumerate(leaves.feature):  # parents come before children
             if node not in paths:

@@ -4,7 +4,7 @@ The stage loop, top to bottom: map interactions to classes, solve Q on the estim
 compute TD errors, find the significant split of every aliased class (with ``use_compounds``,
 compound features for the most aliased classes that no feature splits, section 2.5.1), split,
 repeat until no class splits or the stage cap. With ``compaction``, the classes are a BDD and
-interchangeable classes merge when splitting stops (section 2.5.2), and with ``compact_every``
+interchangeable classes merge when learning stops (section 2.5.2), and with ``compact_every``
 also every so many stages, learning going on from the merged classes. The policy acts on Q
 solved on the current classes.
 """
@@ -90,9 +90,9 @@ class RLVC:
             grows.
         compound_tolerances: tolerances of candidate compounds, in units of keypoint scale.
         compaction: hold the classes in a BDD (``ClassBDD``) and merge interchangeable
-            classes when splitting stops (False: a ``ClassTree`` that only splits).
+            classes when learning stops (False: a ``ClassTree`` that only splits).
         compact_every: with ``compaction``, merge every this many stages as well (None:
-            only when splitting stops).
+            only when learning stops).
         compaction_tolerance: classes merge when their values, and the values of their
             greedy actions in each other, differ by at most this share of the range of the
             class values.
@@ -107,7 +107,7 @@ class RLVC:
     compound_tolerances: tuple[float, ...] = (1.0,)
     compaction: bool = False
     compact_every: int | None = None
-    compaction_tolerance: float = 0.05
+    compaction_tolerance: float = 0.02
     compounds: list[Compound] = field(default_factory=list, init=False)
     structure: ClassTree | ClassBDD = field(init=False)
     history: list[StageRecord] = field(default_factory=list, init=False)
@@ -123,7 +123,7 @@ class RLVC:
         default=None, init=False, repr=False
     )
     # Compaction runs when classes split since the last one, at stages that are multiples of
-    # ``compact_every`` and at the end of a stage that did not split.
+    # ``compact_every`` and at the end of each ``learn`` call.
     _splits_since_compaction: int = field(default=0, init=False, repr=False)
 
     def __post_init__(self) -> None:
@@ -250,10 +250,6 @@ class RLVC:
                 classes[moved] = new_class
             if splits:  # the acting Q is solved again when first needed
                 self._pending = (db, classes.clone())
-            elif self.compaction and self._splits_since_compaction:
-                # Splitting stopped: the learned classes end compacted.
-                classes, self._q, last_merged = self._compact(db, classes, q)
-                merged += last_merged
             done = time.perf_counter()
             self.timing.solve += solved - start
             self.timing.split += done - solved
@@ -274,6 +270,17 @@ class RLVC:
                 break
             if not splits:
                 break
+        if self.compaction and self._splits_since_compaction:
+            # Learning stopped (no split, the stage cap or the callback): the classes end
+            # compacted, and the last stage's record says so.
+            _, self._q, merged = self._compact(db, classes, self.q)
+            self._pending = None
+            last = self.history[-1]
+            last.merged += merged
+            last.classes, last.selected_features = (
+                self.n_classes,
+                len(self.structure.selected_features),
+            )
         return self
 
     def _compaction_due(self) -> bool:

@@ -1,0 +1,31 @@
+"""compare_compaction end to end on a small maze run; the test sets of the oracle tasks."""
+
+import json
+
+import numpy as np
+import pytest
+
+from vistask.experiments.compare_compaction import compare_compaction
+from vistask.experiments.tasks import task_for
+
+
+def test_small_comparison_writes_both_methods_and_the_sawtooth(tmp_path):
+    summary = compare_compaction(interactions=3000, seeds=[0], out=tmp_path, progress=False)
+    saved = json.loads((tmp_path / "summary.json").read_text())
+    for method in ("tree", "bdd"):
+        for key in ("classes", "selected_features", "return_ratio", "test_error", "seconds"):
+            assert saved[method][key] == pytest.approx(summary[method][key])
+        assert 0 <= saved[method]["test_error"] <= 1
+    assert saved["bdd"]["classes"] < saved["tree"]["classes"]
+    assert (tmp_path / "sawtooth.png").stat().st_size > 0
+    assert (tmp_path / "bdd-seed0.pt").is_file()
+
+
+def test_maze_test_set_marks_the_oracles_action_optimal():
+    task = task_for("vistask/VisualMaze-v0")
+    percepts, optimal = task.test_set(grid=10)
+    assert percepts.shape[1:] == (64, 64, 3) and optimal.shape == (len(percepts), 4)
+    assert optimal.any(axis=1).all()
+    with pytest.raises(ValueError, match="oracle test set"):
+        compare_compaction("vistask/VisualMountainCar-v0", interactions=100)
+    assert np.isin(optimal.sum(axis=1), [1, 2, 3, 4]).all()
