@@ -10,21 +10,20 @@ percepts seen so far do not need (the classes are free to differ on feature comb
 seen: the cofactor "feature absent" replaces every class). Dynamic reordering is off: the
 support of a class does not depend on the order, and sifting took minutes a stage on the maze.
 
-Classification runs on a compiled form of the same partition: a decision tree over the same
-tests whose leaves map to classes (a merge relabels leaves, a split splits every leaf of the
-class, a dropped feature's nodes are bypassed by their "absent" branch). It classifies a batch
-in one vectorized walk; compiling the classes to one multi-terminal diagram instead grew
-exponentially with the merges on the maze. Splitting a merged class splits all its leaves,
-so periodic compaction (``RLVC(compact_every=...)``) multiplies the leaves of classes that
-merge and split again: on the maze it slows stages down within 150 stages.
+Classification replays the history of the partition on a batch of presence vectors: every
+class starts as class 0, each group of splits (one stage's: distinct classes) moves the rows
+of a split class whose feature is present to the new class, each merge relabels; a dropped
+feature's splits are deleted from the history (with the feature absent they never move a row,
+which is what the cofactor means). A batch costs one vectorized step per stage and merge.
+Compiling the classes to one multi-terminal diagram instead grew exponentially with the merges
+on the maze, and a decision tree with a leaf per region multiplied its leaves whenever a
+merged class split again.
 """
 
 from __future__ import annotations
 
 import numpy as np
 import torch
-
-from vistask.rlvc.tree import ClassTree
 
 try:
     from dd import cudd as _dd
@@ -53,16 +52,13 @@ class ClassBDD:
     def __init__(self, n_features: int) -> None:
         if n_features < 1:
             raise ValueError(f"n_features must be >= 1, got {n_features}")
+        self.n_features = int(n_features)
         self.bdd = _dd.BDD()
         self.bdd.configure(reordering=False)
         self.functions = [self.bdd.true]
-        self.leaves = ClassTree(n_features)  # the compiled classifier; its classes are leaves
-        self.class_of_leaf = np.zeros(1, dtype=np.int64)
+        # The history: {"splits": {class: (feature, new class)}} or {"merge": groups list}.
+        self.history: list[dict] = []
         self._selected: set[int] = set()
-
-    @property
-    def n_features(self) -> int:
-        return self.leaves.n_features
 
     @property
     def n_classes(self) -> int:
@@ -78,7 +74,9 @@ class ClassBDD:
 
     def widen(self, n_features: int) -> None:
         """Presence vectors hold ``n_features`` features from now on (compounds were added)."""
-        self.leaves.widen(n_features)
+        if n_features < self.n_features:
+            raise ValueError(f"cannot narrow the classes from {self.n_features} to {n_features}")
+        self.n_features = int(n_features)
 
     def _var(self, feature: int):
         if not 0 <= feature < self.n_features:
@@ -96,10 +94,12 @@ class ClassBDD:
         self.functions[class_id] = function & ~test
         self.functions.append(function & test)
         new_class = self.n_classes - 1
-        leaves = np.flatnonzero(self.class_of_leaf == class_id)
-        for leaf in leaves.tolist():
-            self.leaves.split(leaf, feature)
-        self.class_of_leaf = np.concatenate([self.class_of_leaf, np.full(len(leaves), new_class)])
+        group = self.history[-1].get("splits") if self.history else None
+        # Splits of distinct classes, none made by the same group, are applied at once.
+        if group is None or class_id in group or class_id in {n for _, n in group.values()}:
+            group = {}
+            self.history.append({"splits": group})
+        group[class_id] = (feature, new_class)
         self._selected.add(feature)
         return new_class
 
@@ -115,7 +115,7 @@ class ClassBDD:
         for function, g in zip(self.functions, groups.tolist(), strict=True):
             merged[g] = merged[g] | function
         self.functions = merged
-        self.class_of_leaf = groups.numpy()[self.class_of_leaf]
+        self.history.append({"merge": groups.tolist()})
         self._update_selected()
 
     def simplify(self, presence: torch.Tensor, allowed: torch.Tensor | None = None) -> list[int]:
@@ -123,7 +123,8 @@ class ClassBDD:
         only into classes ``allowed`` for it.
 
         Features are tried from the rarest up; a dropped feature's test is replaced by its
-        "absent" branch in every class. Returns the dropped features.
+        "absent" branch in every class, and classes left empty are removed (ids renumbered in
+        order). Returns the dropped features.
 
         Args:
             presence: (N, F) bool presence of the percepts that must stay where they are.
@@ -131,7 +132,7 @@ class ClassBDD:
                 nowhere else).
         """
         bits = presence.cpu().numpy().copy()
-        classes = self._class_ids(bits)
+        classes = self._replay(bits)
         allowed = np.eye(self.n_classes, dtype=bool) if allowed is None else allowed.numpy()
         dropped = []
         counts = bits.sum(axis=0)
@@ -140,48 +141,85 @@ class ClassBDD:
             changed = bits[rows]
             changed[:, feature] = False
             # Classifying with the dropped columns zeroed is classifying with the cofactors.
-            if allowed[classes[rows], self._class_ids(changed)].all():
+            if allowed[classes[rows], self._replay(changed)].all():
                 bits[rows, feature] = False
                 dropped.append(feature)
         if dropped:
             absent = {_name(f): False for f in dropped}
             self.functions = [self.bdd.let(absent, u) for u in self.functions]
-            self.leaves.bypass(dropped)
+            for step in self.history:
+                if "splits" in step:
+                    for c in [c for c, (f, _) in step["splits"].items() if f in dropped]:
+                        del step["splits"][c]
+            kept = torch.tensor([u != self.bdd.false for u in self.functions])
+            if not kept.all():
+                self.functions = [u for u, k in zip(self.functions, kept, strict=True) if k]
+                self.history.append({"merge": (kept.cumsum(0) - 1).clamp_min(0).tolist()})
             self._update_selected()
         return dropped
 
     def classify(self, presence: torch.Tensor) -> torch.Tensor:
         """(N, F) bool presence -> (N,) long class ids, all rows at once."""
-        leaves = self.leaves.classify(presence)
-        return torch.from_numpy(self.class_of_leaf).to(presence.device)[leaves]
+        if presence.ndim != 2 or presence.shape[1] != self.n_features:
+            raise ValueError(
+                f"presence must be (N, {self.n_features}), got {tuple(presence.shape)}"
+            )
+        return torch.as_tensor(self._replay(presence.cpu().numpy()), device=presence.device)
 
-    def _class_ids(self, bits: np.ndarray) -> np.ndarray:
-        return self.classify(torch.from_numpy(bits)).numpy()
+    def _replay(self, bits: np.ndarray) -> np.ndarray:
+        """(N, F) bool -> (N,) class ids, by replaying the history."""
+        classes, n_classes = np.zeros(len(bits), dtype=np.int64), 1
+        rows = np.arange(len(bits))
+        for step in self.history:
+            if "merge" in step:
+                classes, n_classes = np.asarray(step["merge"])[classes], max(step["merge"]) + 1
+                continue
+            splits = step["splits"]
+            new_classes = [n for _, n in splits.values()]
+            size = max([n_classes, *(n + 1 for n in new_classes), *(c + 1 for c in splits)])
+            feature, target = np.full(size, -1), np.arange(size)
+            for c, (f, n) in splits.items():
+                feature[c], target[c] = f, n
+            n_classes = size
+            tested = feature[classes]
+            moves = (tested >= 0) & bits[rows, np.maximum(tested, 0)]
+            classes = np.where(moves, target[classes], classes)
+        return classes
 
     def state_dict(self) -> dict:
-        return {"leaves": self.leaves.state_dict(), "class_of_leaf": self.class_of_leaf.tolist()}
+        return {
+            "n_features": self.n_features,
+            "history": [
+                {"splits": [[c, f, n] for c, (f, n) in step["splits"].items()]}
+                if "splits" in step
+                else step
+                for step in self.history
+            ],
+        }
 
     @classmethod
     def from_state_dict(cls, state: dict) -> ClassBDD:
-        """Rebuild; each class's function is the disjunction of its leaves' paths."""
-        leaves = ClassTree.from_state_dict(state["leaves"])
-        classes = cls(leaves.n_features)
-        classes.leaves = leaves
-        classes.class_of_leaf = np.array(state["class_of_leaf"], dtype=np.int64)
+        """Rebuild the functions by replaying the saved history on the BDD."""
+        classes = cls(state["n_features"])
         bdd = classes.bdd
-        functions = [bdd.false] * (int(classes.class_of_leaf.max()) + 1)
-        paths = {0: bdd.true}
-        for node, feature in enumerate(leaves.feature):  # parents come before children
-            if node not in paths:
-                continue  # below a bypassed test
-            if feature >= 0:
-                test = classes._var(feature)
-                paths[leaves.absent[node]] = paths[node] & ~test
-                paths[leaves.present[node]] = paths[node] & test
-            else:
-                c = classes.class_of_leaf[leaves.leaf_class[node]]
-                functions[c] = functions[c] | paths[node]
-        classes.functions = functions
+        functions = {0: bdd.true}
+        for step in state["history"]:
+            if "merge" in step:
+                merged: dict[int, object] = {}
+                for c, g in enumerate(step["merge"]):
+                    merged[g] = merged.get(g, bdd.false) | functions.get(c, bdd.false)
+                functions = merged
+                classes.history.append({"merge": list(step["merge"])})
+                continue
+            group = {}
+            for c, f, n in step["splits"]:
+                test = classes._var(f)
+                function = functions.get(c, bdd.false)  # a dropped split's class is empty
+                functions[c], functions[n] = function & ~test, function & test
+                group[c] = (f, n)
+            classes.history.append({"splits": group})
+        size = max(functions) + 1
+        classes.functions = [functions.get(c, bdd.false) for c in range(size)]
         classes._update_selected()
         return classes
 
