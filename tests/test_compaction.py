@@ -79,7 +79,7 @@ def test_vectorized_bdd_classification_equals_dds_own_evaluation(simplified):
     _, bdd = random_splits(16, 40, seed=2)
     groups = torch.unique(torch.randint(0, 9, (bdd.n_classes,)), return_inverse=True)[1]
     bdd.merge(groups)  # disjunctions
-    if simplified:  # cofactors in the BDD, bypassed tests in the compiled tree
+    if simplified:  # cofactors in the BDD, deleted splits in the replayed history
         seen = torch.from_numpy(np.random.default_rng(8).random((40, 16)) < 0.2)
         assert bdd.simplify(seen)
     presence = torch.from_numpy(np.random.default_rng(3).random((300, 16)) < 0.5)

@@ -65,7 +65,7 @@ class Timing:
     solve: float = 0.0
     split: float = 0.0
     compounds: float = 0.0  # part of ``split``: the compound search
-    compaction: float = 0.0  # part of ``solve``: merging classes and solving Q again
+    compaction: float = 0.0  # merging, dropping features, solving Q on the merged classes
 
 
 @dataclass

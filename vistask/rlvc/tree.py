@@ -47,8 +47,8 @@ class ClassTree:
     @property
     def depth(self) -> int:
         depth = {0: 0}
-        for node, f in enumerate(self.feature):  # children come after their parents
-            if f >= 0 and node in depth:
+        for node, f in enumerate(self.feature):
+            if f >= 0:
                 depth[self.absent[node]] = depth[self.present[node]] = depth[node] + 1
         return max(depth.values())
 
@@ -76,24 +76,6 @@ class ClassTree:
         self._leaf_of_class.append(present)
         self._tables.clear()
         return new_class
-
-    def bypass(self, features: list[int]) -> None:
-        """Replace every test of these features by its "absent" branch (the tree then
-        classifies as if they were never present); classes below a "present" branch of them
-        are no longer reached."""
-        drop = set(features)
-        for node in range(len(self.feature)):
-            while self.feature[node] in drop:
-                absent = self.absent[node]
-                self.feature[node], self.leaf_class[node] = (
-                    self.feature[absent],
-                    self.leaf_class[absent],
-                )
-                self.absent[node], self.present[node] = self.absent[absent], self.present[absent]
-                self.feature[absent] = self.leaf_class[absent] = -1  # absorbed into ``node``
-                if self.leaf_class[node] >= 0:
-                    self._leaf_of_class[self.leaf_class[node]] = node
-        self._tables.clear()
 
     def classify(self, presence: torch.Tensor) -> torch.Tensor:
         """(N, F) bool presence -> (N,) long class ids, all rows at once (one step per level)."""
