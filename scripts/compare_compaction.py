@@ -2,27 +2,14 @@
 
 python scripts/compare_compaction.py                                   # the visual maze
 python scripts/compare_compaction.py --env-kwargs '{"photo": "hubble_deep_field"}'  # Fig. 5
-python scripts/compare_compaction.py --env vistask/PlaceNavigation-v0 --max-stages 2000
+python scripts/compare_compaction.py --env vistask/PlaceNavigation-v0
 """
 
 import argparse
 import json
 
+from vistask.cli import positive_int, unit_fraction
 from vistask.experiments.compare_compaction import compare_compaction
-
-
-def positive_int(text: str) -> int:
-    value = int(text)
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be a positive integer, got {text}")
-    return value
-
-
-def tolerance(text: str) -> float:
-    value = float(text)
-    if not 0 <= value < 1:
-        raise argparse.ArgumentTypeError(f"must be in [0, 1), got {text}")
-    return value
 
 
 def main() -> None:
@@ -36,7 +23,7 @@ def main() -> None:
     parser.add_argument(
         "--compact-every", type=positive_int, default=None, help="also compact every N stages"
     )
-    parser.add_argument("--tolerance", type=tolerance, default=0.02)
+    parser.add_argument("--tolerance", type=unit_fraction, default=0.02)
     parser.add_argument("--max-stages", type=positive_int, default=300, help="agents' stage cap")
     parser.add_argument("--out", default=None, help="default runs/compare_compaction-<time>")
     parser.add_argument("--no-progress", action="store_true")

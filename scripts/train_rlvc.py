@@ -9,14 +9,8 @@ python scripts/train_rlvc.py --env vistask/VisualMountainCar-v0 --compounds   # 
 import argparse
 import json
 
+from vistask.cli import positive_int
 from vistask.experiments.train_rlvc import train_rlvc
-
-
-def positive_int(text: str) -> int:
-    value = int(text)
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be a positive integer, got {text}")
-    return value
 
 
 def main() -> None:
