@@ -23,7 +23,7 @@ from PIL import Image
 import vistask.envs  # noqa: F401  (registers the environments)
 from vistask.agents import RLVCAgent
 from vistask.envs.place_navigation import draw_world, view_sheet
-from vistask.experiments.tasks import PlaceTask, task_for
+from vistask.experiments.tasks import PlaceTask, Task, task_for
 from vistask.experiments.train_rlvc import agent_policy
 from vistask.runs import print_table, run_dir, write_summary
 
@@ -39,32 +39,27 @@ def test_error(agent: RLVCAgent, percepts: np.ndarray, optimal: np.ndarray) -> f
 
 def run_method(
     method: str,
-    env_id: str,
-    env_kwargs: dict,
+    env: gym.Env,
+    task: Task,
+    test_set: tuple[np.ndarray, np.ndarray],
     interactions: int,
     seed: int,
-    compact_every: int | None,
-    tolerance: float,
-    max_stages: int,
+    agent_kwargs: dict,
     out: Path,
     progress: bool,
 ) -> tuple[dict, list[dict]]:
     """Learn one agent; returns its measures and its per-stage (classes, features) history."""
-    env = gym.make(env_id, **env_kwargs)
     agent = RLVCAgent(
         env,
         compaction=method == "bdd",
-        compact_every=compact_every,
-        compaction_tolerance=tolerance,
-        max_stages=max_stages,
         seed=seed,
         tensorboard_log=out / "tensorboard",
+        **agent_kwargs,
     )
     start = time.perf_counter()
     agent.learn(interactions, tb_log_name=f"{method}-seed{seed}", progress_bar=progress)
     seconds = time.perf_counter() - start
-    task = task_for(env_id, env_kwargs)
-    percepts, optimal = task.test_set()
+    percepts, optimal = test_set
     agent.save(out / f"{method}-seed{seed}.pt")
     rlvc = agent.rlvc
     result = {
@@ -141,21 +136,18 @@ def compare_compaction(
             '{"photo": "hubble_deep_field"}) or vistask/PlaceNavigation-v0'
         )
     out = run_dir("compare_compaction", out)
+    env, test_set = gym.make(env_id, **env_kwargs), task.test_set()
+    agent_kwargs = {
+        "compact_every": compact_every,
+        "compaction_tolerance": tolerance,
+        "max_stages": max_stages,
+    }
     runs = {m: [] for m in METHODS}
     histories = {m: [] for m in METHODS}
     for seed in seeds:
         for method in METHODS:
             result, history = run_method(
-                method,
-                env_id,
-                env_kwargs,
-                interactions,
-                seed,
-                compact_every,
-                tolerance,
-                max_stages,
-                out,
-                progress,
+                method, env, task, test_set, interactions, seed, agent_kwargs, out, progress
             )
             runs[method].append({"seed": seed, **result})
             histories[method].append(history)
