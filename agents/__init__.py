@@ -1,6 +1,8 @@
-"""Agents of vistask (installed as ``vistask.agents``): RLVC on images, tabular Q-learning."""
+"""Agents of vistask (installed as ``vistask.agents``): RLVC and RLJC on images, tabular
+Q-learning."""
 
+from vistask.agents.rljc_agent import RLJCAgent
 from vistask.agents.rlvc_agent import RLVCAgent
 from vistask.agents.tabular import TabularQAgent
 
-__all__ = ["RLVCAgent", "TabularQAgent"]
+__all__ = ["RLJCAgent", "RLVCAgent", "TabularQAgent"]

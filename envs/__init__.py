@@ -1,6 +1,7 @@
 """Gymnasium environments of vistask (installed as ``vistask.envs``).
 
-Importing this package registers ``vistask/VisualMaze-v0``, ``vistask/VisualMountainCar-v0``,
+Importing this package registers ``vistask/VisualMaze-v0``, its continuous-action variant
+``vistask/VisualMazeContinuous-v0`` (the move's angle in radians), ``vistask/VisualMountainCar-v0``,
 ``vistask/PlaceNavigation-v0`` and ``vistask/GraspTrial-v0``.
 Robosuite-based modules (``scene``, ``tabletop``, ``grasp_trial``) are imported only when
 used: importing robosuite takes seconds. ``place_navigation`` imports MuJoCo and sets
@@ -13,6 +14,7 @@ from vistask.envs.car_oracle import CarOracle, evaluate_car_policy, start_states
 from vistask.envs.maze_oracle import (
     EvaluationResult,
     MazeOracle,
+    direction_angles,
     evaluate_policy,
     start_positions,
 )
@@ -34,10 +36,14 @@ from vistask.envs.place_navigation import (
     view_sheet,
 )
 from vistask.envs.visual_maze import (
+    ACTION_ANGLES,
     ACTION_NAMES,
     MazeGeometry,
+    VisualMazeContinuousEnv,
+    VisualMazeContinuousVectorEnv,
     VisualMazeEnv,
     VisualMazeVectorEnv,
+    angle_directions,
     draw_maze,
 )
 
@@ -46,6 +52,13 @@ if "vistask/VisualMaze-v0" not in registry:
         id="vistask/VisualMaze-v0",
         entry_point="vistask.envs.visual_maze:VisualMazeEnv",
         vector_entry_point="vistask.envs.visual_maze:VisualMazeVectorEnv",
+        max_episode_steps=50,
+    )
+if "vistask/VisualMazeContinuous-v0" not in registry:
+    register(
+        id="vistask/VisualMazeContinuous-v0",
+        entry_point="vistask.envs.visual_maze:VisualMazeContinuousEnv",
+        vector_entry_point="vistask.envs.visual_maze:VisualMazeContinuousVectorEnv",
         max_episode_steps=50,
     )
 if "vistask/VisualMountainCar-v0" not in registry:
@@ -69,6 +82,7 @@ if "vistask/GraspTrial-v0" not in registry:
     register(id="vistask/GraspTrial-v0", entry_point="vistask.envs.grasp_trial:GraspTrialEnv")
 
 __all__ = [
+    "ACTION_ANGLES",
     "ACTION_NAMES",
     "CAR_ACTION_NAMES",
     "PLACE_ACTION_NAMES",
@@ -81,10 +95,14 @@ __all__ = [
     "PlaceNavigationVectorEnv",
     "PlaceOracle",
     "PlaceWorld",
+    "VisualMazeContinuousEnv",
+    "VisualMazeContinuousVectorEnv",
     "VisualMazeEnv",
     "VisualMazeVectorEnv",
     "VisualMountainCarEnv",
     "VisualMountainCarVectorEnv",
+    "angle_directions",
+    "direction_angles",
     "draw_maze",
     "draw_world",
     "evaluate_car_policy",

@@ -56,21 +56,52 @@ class BatchedCopies(VectorEnv):
         return mask
 
     def _check_actions(self, actions) -> np.ndarray:
-        """(num_envs,) integer actions in the single action space, after a reset."""
+        """The batch's actions checked against the single action space, after a reset.
+
+        ``Discrete``: (num_envs,) integers in 0..n-1, returned as they are. ``Box``:
+        (num_envs, *shape) finite reals within its bounds, or (num_envs,) for a box of shape
+        (1,); returned as a float64 (num_envs, *shape) array.
+        """
         actions = np.asarray(actions)
-        n_actions = int(self.single_action_space.n)
-        if (
-            actions.shape != (self.num_envs,)
-            or not np.issubdtype(actions.dtype, np.integer)
-            or actions.min() < 0
-            or actions.max() >= n_actions
-        ):
-            raise ValueError(
-                f"expected {self.num_envs} integer actions in 0..{n_actions - 1}, got {actions}"
-            )
+        space = self.single_action_space
+        if isinstance(space, gym.spaces.Box):
+            actions = self._check_box_actions(actions, space)
+        else:
+            n_actions = int(space.n)
+            if (
+                actions.shape != (self.num_envs,)
+                or not np.issubdtype(actions.dtype, np.integer)
+                or actions.min() < 0
+                or actions.max() >= n_actions
+            ):
+                raise ValueError(
+                    f"expected {self.num_envs} integer actions in 0..{n_actions - 1}, got {actions}"
+                )
         if any(rng is None for rng in self.rngs):
             raise RuntimeError("call reset() before step()")
         return actions
+
+    def _check_box_actions(self, actions: np.ndarray, space: gym.spaces.Box) -> np.ndarray:
+        shape = (self.num_envs, *space.shape)
+        if space.shape == (1,) and actions.shape == (self.num_envs,):
+            actions = actions.reshape(shape)
+        # Compare in float64 against the box's float32 bounds, so that a float64 action equal
+        # to a bound before rounding (np.pi for a float32 box up to π) is inside.
+        if (
+            actions.shape != shape
+            or actions.dtype.kind not in "iuf"
+            or not np.all(np.isfinite(actions))
+            or np.any(actions < space.low)
+            or np.any(actions > space.high)
+        ):
+            also = f" (or ({self.num_envs},))" if space.shape == (1,) else ""
+            one = space.low.size == 1
+            low, high = (space.low.item(), space.high.item()) if one else (space.low, space.high)
+            raise ValueError(
+                f"expected {self.num_envs} actions as a {shape}{also} array of finite reals"
+                f" within [{low}, {high}], got {actions}"
+            )
+        return actions.astype(np.float64)
 
     def _count_step(self) -> np.ndarray:
         """Count one step of every copy; (num_envs,) truncation flags, as ``TimeLimit``."""

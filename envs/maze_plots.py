@@ -1,4 +1,6 @@
-"""Pictures of value functions and policies over the true maze positions (paper Figs. 3-4)."""
+"""Pictures of value functions and policies over the true maze positions (paper Figs. 3-4):
+action ids (``plot_policy``) or move angles of the continuous-action maze (``plot_directions``).
+"""
 
 from __future__ import annotations
 
@@ -11,7 +13,12 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
-from vistask.envs.visual_maze import ACTION_DIRECTIONS, VisualMazeEnv, draw_maze
+from vistask.envs.visual_maze import (
+    ACTION_DIRECTIONS,
+    VisualMazeEnv,
+    angle_directions,
+    draw_maze,
+)
 
 
 def grid_positions(env: VisualMazeEnv, grid: int) -> np.ndarray:
@@ -71,10 +78,33 @@ def plot_values(
 
 def plot_policy(env: VisualMazeEnv, actions: np.ndarray, path: str | Path, title: str = "") -> Path:
     """Greedy actions (grid, grid) as arrows over the maze picture (paper Fig. 3 right)."""
-    grid = actions.shape[0]
-    points = grid_positions(env, grid)
-    free = env.geometry.is_free(points)
     directions = ACTION_DIRECTIONS[np.nan_to_num(actions.ravel()).astype(int)]
+    return _plot_arrows(env, directions, actions.shape[0], path, title)
+
+
+def plot_directions(
+    env: VisualMazeEnv, angles: np.ndarray, path: str | Path, title: str = ""
+) -> Path:
+    """Move angles in radians (grid, grid) as arrows over the maze picture, for a policy of
+    ``VisualMazeContinuousEnv`` (e.g. ``MazeOracle.policy_angles``); NaN cells get no arrow.
+
+    Example:
+        >>> oracle = MazeOracle.solve(env.geometry, n_directions=32)
+        >>> plot_directions(env, oracle.policy_angles[::2, ::2], "policy.png")
+    """
+    angles = np.asarray(angles, dtype=np.float64)
+    directions = angle_directions(angles)
+    directions[~np.isfinite(angles.ravel())] = np.nan
+    return _plot_arrows(env, directions, angles.shape[0], path, title)
+
+
+def _plot_arrows(
+    env: VisualMazeEnv, directions: np.ndarray, grid: int, path: str | Path, title: str
+) -> Path:
+    """Unit vectors (grid*grid, 2), row-major over ``grid_positions``, as arrows at the free
+    cells (NaN vectors skipped)."""
+    points = grid_positions(env, grid)
+    free = env.geometry.is_free(points) & np.isfinite(directions).all(axis=1)
     pixels = points * env.pixels_per_unit
     fig, ax = plt.subplots(figsize=(6, 6))
     ax.imshow(draw_maze(env))

@@ -1,7 +1,9 @@
 """The noisy visual maze of the paper's Fig. 3, as a Gymnasium environment.
 
 Coordinates: a position is (x, y) in the square [0, size]^2 with x to the right and y *down*,
-as in the image that shows the maze; "up" therefore decreases y.
+as in the image that shows the maze; "up" therefore decreases y. A move direction given as an
+angle θ (``VisualMazeContinuousEnv``) is (cos θ, sin θ) in these coordinates: θ = 0 is right,
+π/2 down, -π/2 up and ±π left.
 """
 
 from __future__ import annotations
@@ -22,6 +24,11 @@ Rect = tuple[float, float, float, float]  # (x0, y0, x1, y1), x0 < x1, y0 < y1
 ACTION_NAMES: tuple[str, ...] = ("up", "right", "down", "left")
 # Unit displacement of each action in (x, y) with y pointing down.
 ACTION_DIRECTIONS = np.array([[0.0, -1.0], [1.0, 0.0], [0.0, 1.0], [-1.0, 0.0]])
+# The same directions as angles (see ``angle_directions``): -π/2, 0, π/2, π.
+ACTION_ANGLES = np.arctan2(ACTION_DIRECTIONS[:, 1], ACTION_DIRECTIONS[:, 0])
+# Largest accepted |angle|: π rounded to float32 (the dtype of the continuous action space)
+# lies just above np.pi, and a sampled or stored float32 π must stay valid.
+ANGLE_LIMIT = float(np.float32(np.pi))
 
 DEFAULT_OBSTACLES: tuple[Rect, ...] = (
     (0.30, 0.00, 0.36, 0.60),
@@ -30,6 +37,28 @@ DEFAULT_OBSTACLES: tuple[Rect, ...] = (
     (0.80, 0.20, 1.00, 0.25),
 )
 DEFAULT_EXITS: tuple[Rect, ...] = ((0.00, 0.00, 0.10, 0.10), (0.90, 0.90, 1.00, 1.00))
+
+
+def angle_directions(angles: np.ndarray) -> np.ndarray:
+    """Unit move directions (N, 2) of (N,) angles in radians: (cos θ, sin θ) with y down.
+
+    Example:
+        >>> angle_directions(np.array([0.0, np.pi / 2])).round(12)
+        array([[1., 0.],
+               [0., 1.]])
+
+    θ = 0 is right, π/2 down, -π/2 up, ±π left (exact up to cos(π/2) ≈ 6e-17).
+    """
+    angles = np.asarray(angles, dtype=np.float64).reshape(-1)
+    return np.stack([np.cos(angles), np.sin(angles)], axis=-1)
+
+
+def valid_angles(angles: np.ndarray) -> bool:
+    """True when every entry is a finite real angle in [-π, π] (up to float32 rounding)."""
+    angles = np.asarray(angles)
+    if angles.dtype.kind not in "iuf":
+        return False
+    return bool(np.all(np.isfinite(angles) & (np.abs(angles) <= ANGLE_LIMIT)))
 
 
 def _rects_array(rects: tuple[Rect, ...] | list, name: str, size: float) -> np.ndarray:
@@ -173,17 +202,39 @@ class MazeGeometry:
         return inside & ~_inside(points, self.obstacle_array) & ~_inside(points, self.exit_array)
 
     def move(self, points: np.ndarray, actions: np.ndarray, noise: np.ndarray):
-        """Apply the true dynamics to a batch.
+        """Apply the true dynamics of the four actions to a batch.
 
         Args:
             points: (N, 2) positions.
-            actions: (N,) action ids in 0..3.
+            actions: (N,) action ids in 0..3 (``ACTION_NAMES``).
             noise: (N, 2) standard-normal draws (scaled by ``noise_std`` here).
 
         Returns:
             new positions (N, 2) and (N,) bool "an exit was reached".
         """
-        target = points + self.step * ACTION_DIRECTIONS[actions] + self.noise_std * noise
+        return self.move_towards(points, ACTION_DIRECTIONS[actions], noise)
+
+    def move_towards(self, points: np.ndarray, directions: np.ndarray, noise: np.ndarray):
+        """Apply the true dynamics of moves in arbitrary directions to a batch.
+
+        The agent aims ``step`` along ``directions`` and lands ``noise_std * noise`` off; a
+        move whose segment leaves the maze or crosses an obstacle leaves it where it was.
+
+        Example:
+            >>> g = MazeGeometry(noise_std=0.0)
+            >>> g.move_towards(np.array([[0.5, 0.5]]), angle_directions([np.pi / 4]),
+            ...                np.zeros((1, 2)))[0].round(4)
+            array([[0.5707, 0.5707]])
+
+        Args:
+            points: (N, 2) positions.
+            directions: (N, 2) unit vectors (``angle_directions``; ``ACTION_DIRECTIONS`` rows).
+            noise: (N, 2) standard-normal draws (scaled by ``noise_std`` here).
+
+        Returns:
+            new positions (N, 2) and (N,) bool "an exit was reached".
+        """
+        target = points + self.step * directions + self.noise_std * noise
         outside = np.any((target < 0) | (target > self.size), axis=1)
         blocked = outside | _segment_hits(points, target, self.obstacle_array)
         new = np.where(blocked[:, None], points, target)
@@ -273,8 +324,13 @@ class VisualMazeEnv(gym.Env):
             self.tapestry = photo_canvas(photo, side)
         self.tapestry.setflags(write=False)
         self.observation_space = spaces.Box(0, 255, (self.window, self.window, 3), np.uint8)
-        self.action_space = spaces.Discrete(len(ACTION_NAMES))
+        self.action_space = self._make_action_space()
         self.position = np.zeros(2)
+
+    def _make_action_space(self) -> spaces.Space:
+        """The action space; with ``_directions`` and ``_batch_directions``, all that
+        ``VisualMazeContinuousEnv`` changes."""
+        return spaces.Discrete(len(ACTION_NAMES))
 
     # -- percepts -------------------------------------------------------------------------
     def percept_at(self, position: np.ndarray) -> np.ndarray:
@@ -297,18 +353,27 @@ class VisualMazeEnv(gym.Env):
         return self.percept_at(self.position), {"position": self.position.copy()}
 
     def step(self, action):
-        if not self.action_space.contains(action):
-            raise ValueError(
-                f"invalid action {action!r}: expected an int in 0..{self.action_space.n - 1}"
-                f" ({', '.join(ACTION_NAMES)})"
-            )
+        directions = self._directions(action)
         noise = self.np_random.standard_normal((1, 2))
-        new, exited = self.geometry.move(self.position[None], np.array([int(action)]), noise)
+        new, exited = self.geometry.move_towards(self.position[None], directions, noise)
         self.position = new[0]
         terminated = bool(exited[0])
         reward = self.geometry.reward if terminated else 0.0
         obs = self.percept_at(self.position)
         return obs, reward, terminated, False, {"position": self.position.copy()}
+
+    def _directions(self, action) -> np.ndarray:
+        """(1, 2) move direction of one valid action; ValueError naming the action if not."""
+        if not self.action_space.contains(action):
+            raise ValueError(
+                f"invalid action {action!r}: expected an int in 0..{self.action_space.n - 1}"
+                f" ({', '.join(ACTION_NAMES)})"
+            )
+        return ACTION_DIRECTIONS[[int(action)]]
+
+    def _batch_directions(self, actions: np.ndarray) -> np.ndarray:
+        """(N, 2) move directions of actions already checked by ``BatchedCopies``."""
+        return ACTION_DIRECTIONS[actions]
 
     def render(self) -> np.ndarray | None:
         if self.render_mode != "rgb_array":
@@ -343,14 +408,22 @@ class VisualMazeVectorEnv(BatchedCopies):
         **kwargs: ``VisualMazeEnv`` arguments.
     """
 
+    maze_class: ClassVar[type[VisualMazeEnv]] = VisualMazeEnv  # the single env batched
+
     def __init__(self, num_envs: int = 1, max_episode_steps: int | None = None, **kwargs) -> None:
-        self._attach(VisualMazeEnv(**kwargs), num_envs, max_episode_steps)
+        self._attach(self.maze_class(**kwargs), num_envs, max_episode_steps)
 
     @classmethod
     def like(
         cls, maze: VisualMazeEnv, num_envs: int, max_episode_steps: int | None = None
     ) -> VisualMazeVectorEnv:
-        """Copies of an existing maze, sharing its (read-only) tapestry."""
+        """Copies of an existing maze, sharing its (read-only) tapestry. The copies step as
+        ``maze`` does (its action space and move directions)."""
+        if not isinstance(maze, cls.maze_class):
+            raise TypeError(
+                f"{cls.__name__} batches {cls.maze_class.__name__}, got {type(maze).__name__}:"
+                " use maze.vector_copies(num_envs)"
+            )
         envs = cls.__new__(cls)
         envs._attach(maze, num_envs, max_episode_steps)
         return envs
@@ -370,14 +443,74 @@ class VisualMazeVectorEnv(BatchedCopies):
         return self._percepts(), {"position": self.positions.copy(), "_position": mask.copy()}
 
     def step(self, actions):
-        actions = self._check_actions(actions)
+        directions = self.maze._batch_directions(self._check_actions(actions))
         noise = np.concatenate([rng.standard_normal((1, 2)) for rng in self.rngs])
-        self.positions, terminated = self.maze.geometry.move(self.positions, actions, noise)
+        geometry = self.maze.geometry
+        self.positions, terminated = geometry.move_towards(self.positions, directions, noise)
         truncated = self._count_step()
         rewards = np.where(terminated, self.maze.geometry.reward, 0.0)
         every = np.ones(self.num_envs, dtype=bool)
         infos = {"position": self.positions.copy(), "_position": every}
         return self._percepts(), rewards, terminated, truncated, infos  # as TimeLimit
+
+
+class VisualMazeContinuousEnv(VisualMazeEnv):
+    """The visual maze with a real-valued move direction: continuous actions.
+
+    Everything is as in ``VisualMazeEnv`` (constructor arguments, percepts, reward 100 at an
+    exit, noise, ``info["position"]``) except the action: ``Box(-π, π, (1,), float32)``, the
+    angle θ of the move in radians in the maze's coordinates (x right, y *down*): the agent
+    aims ``step`` along (cos θ, sin θ), so θ = 0 moves right, π/2 down, -π/2 up and ±π left.
+    ``step`` takes an array-like of shape (1,) or a Python float; a non-finite angle or one
+    outside [-π, π] (π rounded to float32 included) raises a ValueError.
+
+    Example:
+        >>> import gymnasium as gym, numpy as np, vistask.envs
+        >>> env = gym.make("vistask/VisualMazeContinuous-v0", noise_std=0.0)
+        >>> obs, info = env.reset(seed=0, options={"position": [0.5, 0.5]})
+        >>> obs, reward, terminated, truncated, info = env.step(np.array([-np.pi / 2]))  # up
+        >>> info["position"].round(6)
+        array([0.5, 0.4])
+    """
+
+    def _make_action_space(self) -> spaces.Space:
+        return spaces.Box(-np.pi, np.pi, (1,), np.float32)
+
+    def _directions(self, action) -> np.ndarray:
+        angle = np.array([action]) if isinstance(action, float) else np.asarray(action)
+        if angle.shape != (1,) or not valid_angles(angle):
+            raise ValueError(
+                f"invalid action {action!r}: expected the move angle in radians as an array"
+                " of shape (1,) (or a float), finite and within [-π, π]"
+                " (0 right, π/2 down, -π/2 up, ±π left)"
+            )
+        return angle_directions(angle)
+
+    def _batch_directions(self, actions: np.ndarray) -> np.ndarray:
+        return angle_directions(actions)
+
+    def vector_copies(
+        self, num_envs: int, max_episode_steps: int | None = None
+    ) -> VisualMazeContinuousVectorEnv:
+        """``num_envs`` copies of this maze (same tapestry) stepped as one batch."""
+        return VisualMazeContinuousVectorEnv.like(self, num_envs, max_episode_steps)
+
+
+class VisualMazeContinuousVectorEnv(VisualMazeVectorEnv):
+    """``num_envs`` continuous-action mazes stepped as one batch (see ``VisualMazeVectorEnv``).
+
+    Actions: (num_envs, 1) (or (num_envs,)) move angles in radians, as
+    ``VisualMazeContinuousEnv``; copy i reset with seed ``seed + i`` gives the episodes of a
+    single env reset with that seed.
+
+    Example:
+        >>> envs = gym.make_vec("vistask/VisualMazeContinuous-v0", num_envs=8,
+        ...                     vectorization_mode="vector_entry_point")
+        >>> obs, infos = envs.reset(seed=0)
+        >>> obs, rewards, terminated, truncated, infos = envs.step(np.zeros((8, 1)))  # right
+    """
+
+    maze_class: ClassVar[type[VisualMazeEnv]] = VisualMazeContinuousEnv
 
 
 def to_pixels(env: VisualMazeEnv, points: np.ndarray) -> np.ndarray:

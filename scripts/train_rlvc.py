@@ -1,15 +1,21 @@
-"""Train RLVC on an image env; on the visual maze, compare its greedy policy with the oracle's.
+"""Train RLVC on an image env (RLJC if its actions are continuous); on the envs with an
+oracle, compare the greedy policy with the oracle's.
 
 python scripts/train_rlvc.py                       # the visual maze, 30,000 interactions
 python scripts/train_rlvc.py --seed 3 --out runs/s3
 python scripts/train_rlvc.py --env-kwargs '{"layout_seed": 7}'   # another maze layout
 python scripts/train_rlvc.py --env vistask/VisualMountainCar-v0 --compounds   # paper Figs. 6-7
+python scripts/train_rlvc.py --env vistask/VisualMazeContinuous-v0   # RLJC, paper Fig. 10
 """
 
 import argparse
 import json
 
+import gymnasium as gym
+
+import vistask.envs  # noqa: F401  (registers the environments)
 from vistask.cli import positive_int
+from vistask.experiments.train_rljc import train_rljc
 from vistask.experiments.train_rlvc import train_rlvc
 
 
@@ -27,15 +33,20 @@ def main() -> None:
     parser.add_argument("--compounds", action="store_true", help="let RLVC make compound features")
     parser.add_argument("--no-progress", action="store_true")
     args = parser.parse_args()
-    train_rlvc(
+    run = dict(
         env_id=args.env,
         env_kwargs=args.env_kwargs,
         interactions=args.interactions,
         seed=args.seed,
         out=args.out,
         progress=not args.no_progress,
-        compounds=args.compounds,
     )
+    if isinstance(gym.make(args.env, **args.env_kwargs).action_space, gym.spaces.Box):
+        if args.compounds:
+            parser.error("--compounds applies to RLVC (discrete actions), not to RLJC")
+        train_rljc(**run)
+    else:
+        train_rlvc(**run, compounds=args.compounds)
 
 
 if __name__ == "__main__":

@@ -1,4 +1,5 @@
-"""Gymnasium observation wrappers: image -> visual features, image -> visual class."""
+"""Gymnasium observation wrappers: image -> visual features, image -> visual class, image ->
+compatible joint classes."""
 
 from __future__ import annotations
 
@@ -9,6 +10,7 @@ import numpy as np
 from gymnasium import spaces
 
 from vistask.features import VisualFeatureExtractor, check_image_space
+from vistask.rlvc import JointClassifier
 
 
 class Classifier(Protocol):
@@ -66,3 +68,39 @@ class VisualClasses(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
 
     def observation(self, observation: np.ndarray) -> int:
         return int(self.classifier(observation))
+
+
+class JointClasses(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
+    """Image observation -> ``MultiBinary(J)``: the joint classes that RLJC learned which are
+    compatible with the image (its perceptual cell). Each joint class carries a box of actions
+    (``box_low``, ``box_high``, (J, m)), so another learner can pick among the boxes of the
+    cell, RLJC's discretisation of the percepts and the actions.
+
+    Example:
+        >>> agent = RLJCAgent.load("rljc.pt")
+        >>> env = JointClasses(gym.make("vistask/VisualMazeContinuous-v0"), agent.classifier)
+        >>> mask, info = env.reset(seed=0)           # (J,) int8 0/1
+        >>> boxes = env.box_low[mask == 1], env.box_high[mask == 1]
+
+    Args:
+        env: environment with (H, W, 3) uint8 image observations and the ``Box`` actions the
+            classes were learned on.
+        classifier: a ``vistask.rlvc.JointClassifier``.
+    """
+
+    def __init__(self, env: gym.Env, classifier: JointClassifier) -> None:
+        check_image_space(env.observation_space, "JointClasses")
+        space = env.action_space
+        if not isinstance(space, spaces.Box) or space.shape != (classifier.box_low.shape[1],):
+            raise TypeError(
+                f"the joint classes hold boxes of {classifier.box_low.shape[1]}-D actions; the "
+                f"env's actions are {space}"
+            )
+        gym.utils.RecordConstructorArgs.__init__(self, classifier=classifier)
+        gym.ObservationWrapper.__init__(self, env)
+        self.classifier = classifier
+        self.box_low, self.box_high = classifier.box_low, classifier.box_high
+        self.observation_space = spaces.MultiBinary(classifier.n_classes)
+
+    def observation(self, observation: np.ndarray) -> np.ndarray:
+        return self.classifier(observation).astype(np.int8)

@@ -1,11 +1,12 @@
 """RLVC (with and without compound features) against Stable-Baselines3 DQN/PPO, tabular
-Q-learning on the true state, and random actions, on the same interaction budgets, seeds and
-evaluation starts (``scripts/compare_baselines.py``), on an env with an oracle (the visual maze,
-the visual mountain car: ``tasks.py``).
+Q-learning on the true state, and random actions; on an env with continuous actions, RLJC
+against SB3 SAC/PPO and random actions: on the same interaction budgets, seeds and evaluation
+starts (``scripts/compare_baselines.py``), on an env with an oracle (the visual mazes, the
+visual mountain car: ``tasks.py``).
 
 Every method is scored at every budget B (environment interactions) by its task's evaluation:
 the mean discounted return from the same fixed starts with the same noise. RLVC
-learns from one fixed database, so its checkpoint at B is a fresh agent learned on B
+(and RLJC) learns from one fixed database, so its checkpoint at B is a fresh agent learned on B
 interactions; the other learners train once per seed and are evaluated when they pass B.
 Curves are aggregated over seeds with the interquartile mean (IQM) and percentile-bootstrap
 confidence intervals.
@@ -24,14 +25,16 @@ import gymnasium as gym
 import numpy as np
 from scipy import stats
 
-from vistask.agents import RLVCAgent, TabularQAgent
+from vistask.agents import RLJCAgent, RLVCAgent, TabularQAgent
 from vistask.checks import check_at_least
 from vistask.envs.maze_oracle import Policy
 from vistask.experiments.tasks import GridCells, Task, task_for
 from vistask.rlvc import random_policy
 from vistask.runs import print_table, run_dir, tensorboard, write_summary
 
-METHODS = ("rlvc", "rlvc_compounds", "dqn", "ppo", "tabular", "random")
+DISCRETE_METHODS = ("rlvc", "rlvc_compounds", "dqn", "ppo", "tabular", "random")
+CONTINUOUS_METHODS = ("rljc", "sac", "ppo", "random")
+METHODS = tuple(dict.fromkeys(DISCRETE_METHODS + CONTINUOUS_METHODS))
 DEFAULT_BUDGETS = (1_000, 2_000, 5_000, 10_000, 20_000, 50_000, 100_000)
 QUICK_BUDGETS = (300, 1_000)
 THRESHOLDS = (0.9, 0.75)  # fractions of the oracle's return; 0.9 is the issue's target
@@ -47,7 +50,8 @@ class Comparison:
     Args:
         env_id, env_kwargs: the environment (``gym.make`` arguments): one with an oracle
             (``tasks.task_for``).
-        methods: subset of ``METHODS``.
+        methods: subset of ``DISCRETE_METHODS`` for an env with discrete actions, of
+            ``CONTINUOUS_METHODS`` for continuous ones (None: all of them).
         budgets: increasing interaction budgets at which every method is evaluated.
         seeds: number of seeds (seed k uses ``seed0 + k``).
         seed0: first seed.
@@ -55,7 +59,8 @@ class Comparison:
         grid: cells per dimension of the tabular baseline's true-state grid (None: as many
             cells as RLVC's classes at the largest budget, the paper's "equivalent number of
             states"; RLVC then runs first).
-        dqn_kwargs, ppo_kwargs: extra SB3 constructor arguments (override the defaults).
+        dqn_kwargs, ppo_kwargs, sac_kwargs: extra SB3 constructor arguments (override the
+            defaults).
         device: torch device of the SB3 networks.
     """
 
@@ -63,7 +68,7 @@ class Comparison:
         self,
         env_id: str = "vistask/VisualMaze-v0",
         env_kwargs: dict | None = None,
-        methods: Sequence[str] = METHODS,
+        methods: Sequence[str] | None = None,
         budgets: Sequence[int] = DEFAULT_BUDGETS,
         seeds: int = 5,
         seed0: int = 0,
@@ -71,12 +76,20 @@ class Comparison:
         grid: int | None = 10,
         dqn_kwargs: dict | None = None,
         ppo_kwargs: dict | None = None,
+        sac_kwargs: dict | None = None,
         device: str = "cpu",
     ) -> None:
-        methods, budgets = tuple(methods), tuple(int(b) for b in budgets)
-        unknown = set(methods) - set(METHODS)
+        continuous = isinstance(gym.make(env_id, **(env_kwargs or {})).action_space, gym.spaces.Box)
+        allowed = CONTINUOUS_METHODS if continuous else DISCRETE_METHODS
+        methods = allowed if methods is None else tuple(methods)
+        budgets = tuple(int(b) for b in budgets)
+        unknown = set(methods) - set(allowed)
         if unknown or not methods:
-            raise ValueError(f"methods must be a non-empty subset of {METHODS}, got {methods}")
+            kind = "continuous" if continuous else "discrete"
+            raise ValueError(
+                f"{env_id} has {kind} actions: methods must be a non-empty subset of "
+                f"{allowed}, got {methods}"
+            )
         if not budgets or min(budgets) < 1 or list(budgets) != sorted(set(budgets)):
             raise ValueError(f"budgets must be strictly increasing positive ints, got {budgets}")
         check_at_least(1, seeds=seeds, eval_starts=eval_starts)
@@ -90,6 +103,7 @@ class Comparison:
         self.methods, self.budgets, self.seeds, self.seed0 = methods, budgets, seeds, seed0
         self.eval_starts, self.grid, self.device = eval_starts, grid, device
         self.dqn_kwargs, self.ppo_kwargs = dict(dqn_kwargs or {}), dict(ppo_kwargs or {})
+        self.sac_kwargs = dict(sac_kwargs or {})
 
     def params(self) -> dict:
         """The constructor's arguments (written to ``summary.json``)."""
@@ -104,19 +118,21 @@ class Comparison:
             "eval_starts": 20,
             "dqn_kwargs": {"learning_starts": 100, "buffer_size": 1_000, "train_freq": 8},
             "ppo_kwargs": {"n_steps": 128, "batch_size": 64, "n_epochs": 2},
+            "sac_kwargs": {"learning_starts": 100, "buffer_size": 1_000, "batch_size": 32},
         }
         return cls(**{**small, **overrides})
 
     def sb3_kwargs(self, method: str) -> dict:
-        """Constructor arguments of the SB3 baseline ``method`` ("dqn" or "ppo")."""
+        """Constructor arguments of the SB3 baseline ``method`` ("dqn", "ppo" or "sac")."""
+        # Replay memory of 64x64x3 images: cap it (SB3's default 1M would need 12 GB).
+        replay = {
+            "buffer_size": min(50_000, max(self.budgets)),
+            "learning_starts": min(1_000, max(self.budgets) // 10),
+        }
         if method == "dqn":
-            # Replay memory of 64x64x3 images: cap it (SB3's default 1M would need 12 GB).
-            base = {
-                "buffer_size": min(50_000, max(self.budgets)),
-                "learning_starts": min(1_000, max(self.budgets) // 10),
-                "exploration_fraction": 0.2,
-            }
-            return {**base, **self.dqn_kwargs}
+            return {**replay, "exploration_fraction": 0.2, **self.dqn_kwargs}
+        if method == "sac":
+            return {**replay, **self.sac_kwargs}
         if method == "ppo":
             return {"n_steps": 512, "batch_size": 64, **self.ppo_kwargs}
         raise ValueError(f"no SB3 baseline called {method!r}")
@@ -133,7 +149,7 @@ class RunResult:
     returns: list[float]
     train_seconds: float
     seconds: float
-    classes: list[int] | None = None  # RLVC's classes at each budget
+    classes: list[int] | None = None  # RLVC's (RLJC's joint) classes at each budget
 
 
 # evaluate(policy) -> mean discounted return from the fixed starts; log(budget, value).
@@ -141,8 +157,9 @@ Evaluate = Callable[[Policy], float]
 Log = Callable[[int, float], None]
 
 
-def _random_policy(seed: int, n_actions: int) -> Policy:
-    rng, policy = np.random.default_rng(seed), random_policy(n_actions)
+def _random_policy(seed: int, space: gym.spaces.Space) -> Policy:
+    actions = space if isinstance(space, gym.spaces.Box) else int(space.n)
+    rng, policy = np.random.default_rng(seed), random_policy(actions)
     return lambda percepts, positions: policy(percepts, rng)
 
 
@@ -151,24 +168,28 @@ def _model_policy(model) -> Policy:
     return lambda percepts, positions: model.predict(percepts, deterministic=True)[0]
 
 
-def run_rlvc(
-    config: Comparison, seed: int, evaluate: Evaluate, log: Log, compounds: bool = False
+def run_visual(
+    config: Comparison, method: str, seed: int, evaluate: Evaluate, log: Log
 ) -> tuple[list[float], float, list[int]]:
-    """A fresh RLVCAgent per budget (RLVC learns from a fixed database of B interactions).
+    """A fresh RLVCAgent ("rlvc", "rlvc_compounds") or RLJCAgent ("rljc") per budget: they
+    learn from a fixed database of B interactions.
 
     Every ``run_*`` returns the evaluation return at each budget and the training seconds
-    (evaluation excluded); ``log`` receives each (budget, return) as it is measured. RLVC also
-    returns its number of classes at each budget.
+    (evaluation excluded); ``log`` receives each (budget, return) as it is measured. RLVC and
+    RLJC also return their number of classes at each budget.
     """
     returns, train, classes = [], 0.0, []
     for budget in config.budgets:
         env = gym.make(config.env_id, **config.env_kwargs)
         t0 = time.perf_counter()
-        agent = RLVCAgent(env, compounds=compounds, seed=seed)
+        if method == "rljc":
+            agent = RLJCAgent(env, seed=seed)
+        else:
+            agent = RLVCAgent(env, compounds=method == "rlvc_compounds", seed=seed)
         agent.learn(budget, progress_bar=False)
         train += time.perf_counter() - t0
         returns.append(evaluate(lambda percepts, positions, a=agent: a.predict(percepts)[0]))
-        classes.append(agent.rlvc.n_classes)
+        classes.append(agent.learner.n_classes)
         log(budget, returns[-1])
     return returns, train, classes
 
@@ -194,10 +215,9 @@ def run_random(
     config: Comparison, seed: int, evaluate: Evaluate, log: Log, task: Task
 ) -> tuple[list[float], float]:
     """Uniformly random actions: no learning, the same score at every budget up to noise."""
-    n_actions = int(task.env.action_space.n)
     returns = []
     for budget in config.budgets:
-        returns.append(evaluate(_random_policy(seed + budget, n_actions)))
+        returns.append(evaluate(_random_policy(seed + budget, task.env.action_space)))
         log(budget, returns[-1])
     return returns, 0.0
 
@@ -205,9 +225,9 @@ def run_random(
 def run_sb3(
     config: Comparison, method: str, seed: int, evaluate: Evaluate, log: Log, tb_dir: Path
 ) -> tuple[list[float], float]:
-    """SB3 DQN or PPO with ``CnnPolicy`` on the raw percepts, one ``learn`` call whose
+    """SB3 DQN, PPO or SAC with ``CnnPolicy`` on the raw percepts, one ``learn`` call whose
     callback evaluates the current policy when it passes each budget."""
-    from stable_baselines3 import DQN, PPO
+    from stable_baselines3 import DQN, PPO, SAC
     from stable_baselines3.common.callbacks import BaseCallback
 
     budgets, returns = list(config.budgets), []
@@ -222,7 +242,7 @@ def run_sb3(
                 log(budgets[len(returns) - 1], returns[-1])
             return len(returns) < len(budgets)
 
-    cls = {"dqn": DQN, "ppo": PPO}[method]
+    cls = {"dqn": DQN, "ppo": PPO, "sac": SAC}[method]
     env = gym.make(config.env_id, **config.env_kwargs)
     model = cls(
         "CnnPolicy",
@@ -256,11 +276,10 @@ def run_method(
         writer.flush()
 
     t0, classes = time.perf_counter(), None
-    if method in ("dqn", "ppo"):
+    if method in ("dqn", "ppo", "sac"):
         returns, train = run_sb3(config, method, seed, evaluate, log, tb_root / f"seed{seed}")
-    elif method.startswith("rlvc"):
-        compounds = method == "rlvc_compounds"
-        returns, train, classes = run_rlvc(config, seed, evaluate, log, compounds)
+    elif method.startswith(("rlvc", "rljc")):
+        returns, train, classes = run_visual(config, method, seed, evaluate, log)
     elif method == "tabular":
         returns, train = run_tabular(config, seed, evaluate, log, task, grid)
     else:
@@ -362,30 +381,32 @@ def aggregate(
 
 
 def speedups(methods: dict[str, dict], budgets: Sequence[int]) -> dict[str, object]:
-    """Best SB3 interactions-to-threshold divided by RLVC's, per threshold.
+    """Best SB3 interactions-to-threshold divided by the visual learner's (RLVC, or RLJC on
+    continuous actions), per threshold.
 
-    ``sb3_over_rlvc_<pct>pct`` is None when either never reaches the threshold; when RLVC
-    does and no SB3 baseline does, ``..._lower_bound`` (max budget / RLVC's) bounds it.
-    ``..._ci`` is the interval from the methods' CI curves: [pessimistic SB3 / optimistic
-    RLVC ... ] ordered low to high (None where a bound is never reached).
+    ``sb3_over_<learner>_<pct>pct`` is None when either never reaches the threshold; when the
+    learner does and no SB3 baseline does, ``..._lower_bound`` (max budget / the learner's)
+    bounds it. ``..._ci`` is the interval from the methods' CI curves: [pessimistic SB3 /
+    optimistic learner ... ] ordered low to high (None where a bound is never reached).
     """
     out: dict[str, object] = {}
-    if "rlvc" not in methods:
+    learner = next((m for m in ("rlvc", "rljc") if m in methods), None)
+    if learner is None:
         return out
-    sb3 = [methods[m] for m in ("dqn", "ppo") if m in methods]
+    sb3 = [methods[m] for m in ("dqn", "ppo", "sac") if m in methods]
     for frac in THRESHOLDS:
         key = f"interactions_to_{round(frac * 100)}pct"
-        name = f"sb3_over_rlvc_{round(frac * 100)}pct"
-        rlvc = methods["rlvc"][key]
+        name = f"sb3_over_{learner}_{round(frac * 100)}pct"
+        ours = methods[learner][key]
         reached = [m[key] for m in sb3 if m[key] is not None]
-        out[name] = min(reached) / rlvc if rlvc and reached else None
-        if rlvc and sb3 and not reached:
-            out[name + "_lower_bound"] = max(budgets) / rlvc
-        rlvc_fast, rlvc_slow = methods["rlvc"][key + "_ci"]
+        out[name] = min(reached) / ours if ours and reached else None
+        if ours and sb3 and not reached:
+            out[name + "_lower_bound"] = max(budgets) / ours
+        ours_fast, ours_slow = methods[learner][key + "_ci"]
         sb3_fast = [m[key + "_ci"][0] for m in sb3 if m[key + "_ci"][0] is not None]
         sb3_slow = [m[key + "_ci"][1] for m in sb3 if m[key + "_ci"][1] is not None]
-        low = min(sb3_fast) / rlvc_slow if sb3_fast and rlvc_slow else None
-        high = min(sb3_slow) / rlvc_fast if sb3_slow and rlvc_fast else None
+        low = min(sb3_fast) / ours_slow if sb3_fast and ours_slow else None
+        high = min(sb3_slow) / ours_fast if sb3_slow and ours_fast else None
         out[name + "_ci"] = [low, high]
     return out
 

@@ -14,25 +14,35 @@ import numpy as np
 from gymnasium import spaces
 
 import vistask.envs  # noqa: F401  (registers the environments)
-from vistask.envs import MazeOracle, VisualMazeEnv, evaluate_policy, start_positions
+from vistask.envs import (
+    MazeOracle,
+    VisualMazeContinuousEnv,
+    VisualMazeEnv,
+    evaluate_policy,
+    start_positions,
+)
 from vistask.envs.car_oracle import CarOracle, evaluate_car_policy, start_states
 from vistask.envs.maze_oracle import EvaluationResult, Policy, grid_cells
 from vistask.envs.maze_plots import grid_positions
 from vistask.envs.mountain_car import MAX_POSITION, MAX_SPEED, VisualMountainCarEnv
 from vistask.envs.place_navigation import PlaceNavigationEnv, PlaceOracle
 
+ORACLE_DIRECTIONS = 32  # the continuous-direction maze's oracle picks among these many angles
 # The maze's test set: an action is optimal within this share of the range of optimal values
 # (the oracle's action values come from sampled noise: exact ties are rare).
 OPTIMAL_WITHIN = 0.01
 
 
 class MazeTask:
-    """The visual maze: starts are free positions, the true state is the position."""
+    """The visual maze: starts are free positions, the true state is the position. The oracle
+    of the continuous-direction maze moves in ``ORACLE_DIRECTIONS`` directions."""
 
     def __init__(self, env: VisualMazeEnv, eval_starts: int = 100) -> None:
         self.env = env
         self.starts = start_positions(env.geometry, eval_starts)
-        self.oracle = MazeOracle.solve(env.geometry)
+        continuous = isinstance(env, VisualMazeContinuousEnv)
+        directions = ORACLE_DIRECTIONS if continuous else None
+        self.oracle = MazeOracle.solve(env.geometry, n_directions=directions)
         self.oracle_return = self.evaluate(self.oracle.as_policy()).mean
 
     def evaluate(self, policy: Policy) -> EvaluationResult:

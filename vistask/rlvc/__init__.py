@@ -1,8 +1,9 @@
 """RLVC: reinforcement learning of visual classes (interaction database, class tree or BDD, Q
-solver, split search, compaction, learner)."""
+solver, split search, compaction, learner), and RLJC: joint classes of percepts and continuous
+actions (joint tree, learner)."""
 
 from vistask.rlvc.bdd import ClassBDD
-from vistask.rlvc.classifier import VisualClassifier
+from vistask.rlvc.classifier import JointClassifier, VisualClassifier
 from vistask.rlvc.compaction import interchangeable, merge_groups
 from vistask.rlvc.database import (
     InteractionDatabase,
@@ -12,26 +13,34 @@ from vistask.rlvc.database import (
     random_policy,
     vector_copies,
 )
+from vistask.rlvc.joint_tree import JointTree
 from vistask.rlvc.learner import RLVC, StageRecord
+from vistask.rlvc.rljc import RLJC, joint_values
 from vistask.rlvc.solver import ClassMDP, estimate_mdp, state_values, td_errors, value_iteration
-from vistask.rlvc.split import Split, find_splits
+from vistask.rlvc.split import Split, ThresholdSplit, find_splits, find_threshold_splits
 from vistask.rlvc.tree import ClassTree
 
 __all__ = [
+    "RLJC",
     "RLVC",
     "ClassBDD",
     "ClassMDP",
     "ClassTree",
     "InteractionDatabase",
+    "JointClassifier",
+    "JointTree",
     "Split",
     "StageRecord",
+    "ThresholdSplit",
     "Transitions",
     "VisualClassifier",
     "check_image_env",
     "collect",
     "estimate_mdp",
     "find_splits",
+    "find_threshold_splits",
     "interchangeable",
+    "joint_values",
     "merge_groups",
     "random_policy",
     "state_values",

@@ -1,4 +1,5 @@
-"""Image -> visual class: the vocabulary, the learned compounds and the class structure."""
+"""Image -> visual class (the vocabulary, the learned compounds and the class structure), and
+image -> compatible joint classes (the vocabulary and the joint tree of RLJC)."""
 
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ import torch
 
 from vistask.features import Compound, VisualFeatureExtractor, check_image
 from vistask.rlvc.bdd import ClassBDD
+from vistask.rlvc.joint_tree import JointTree
 from vistask.rlvc.tree import ClassTree
 
 
@@ -81,3 +83,71 @@ class VisualClassifier:
     @classmethod
     def load(cls, path: str | Path, extractor: VisualFeatureExtractor | None = None):
         return cls.from_state_dict(torch.load(path, weights_only=True), extractor)
+
+
+class JointClassifier:
+    """Image -> the joint classes compatible with it (its perceptual cell), and the classes'
+    action boxes: the discretisation that RLJC learned.
+
+    Example:
+        >>> classifier = JointClassifier(extractor, tree)     # a JointTree learned by RLJC
+        >>> mask = classifier(image)            # (J,) bool, the compatible joint classes
+        >>> classifier.box_low[mask], classifier.box_high[mask]   # their action boxes (k, m)
+        >>> classifier.cells(images)            # (N,) cell ids, a batch at once
+    """
+
+    def __init__(self, extractor: VisualFeatureExtractor, structure: JointTree) -> None:
+        if structure.n_features != extractor.n_features:
+            raise ValueError(
+                f"the joint classes test {structure.n_features} features but the vocabulary "
+                f"has {extractor.n_features}: they were not learned together"
+            )
+        self.extractor, self.structure = extractor, structure
+
+    @property
+    def n_classes(self) -> int:
+        return self.structure.n_classes
+
+    @property
+    def box_low(self) -> np.ndarray:
+        """(J, m) lower corners of the joint classes' action boxes."""
+        return self.structure.box_low
+
+    @property
+    def box_high(self) -> np.ndarray:
+        """(J, m) upper corners of the joint classes' action boxes."""
+        return self.structure.box_high
+
+    def compatible(self, images: list[np.ndarray]) -> torch.Tensor:
+        """(N, J) bool: the joint classes compatible with each image."""
+        rows, classes = self.structure.compatible(self.extractor.presence(images))
+        mask = torch.zeros(len(images), self.n_classes, dtype=torch.bool)
+        mask[rows, classes] = True
+        return mask
+
+    def cells(self, images: list[np.ndarray]) -> torch.Tensor:
+        """(N,) perceptual cell of each image, numbered within this batch."""
+        return self.structure.cells(self.extractor.presence(images))[0]
+
+    def __call__(self, image: np.ndarray) -> np.ndarray:
+        return self.compatible([check_image(image)])[0].numpy()
+
+    def state_dict(self) -> dict:
+        return {
+            "extractor": self.extractor.state_dict(),
+            "structure": self.structure.state_dict(),
+        }
+
+    @classmethod
+    def from_state_dict(cls, state: dict) -> JointClassifier:
+        return cls(
+            VisualFeatureExtractor.from_state_dict(state["extractor"]),
+            JointTree.from_state_dict(state["structure"]),
+        )
+
+    def save(self, path: str | Path) -> None:
+        torch.save(self.state_dict(), path)
+
+    @classmethod
+    def load(cls, path: str | Path) -> JointClassifier:
+        return cls.from_state_dict(torch.load(path, weights_only=True))

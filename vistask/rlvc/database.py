@@ -27,16 +27,28 @@ from vistask.features import (
 )
 
 # An exploration policy maps a batch of observations (B, H, W, 3) and a generator to (B,)
-# action ids: batches let a policy over visual classes extract features of many views at once.
+# action ids, or (B, m) continuous actions: batches let a policy over visual classes extract
+# features of many views at once.
 ExplorationPolicy = Callable[[np.ndarray, np.random.Generator], np.ndarray]
 
 
-def check_image_env(env: gym.Env) -> None:
-    """Raise a clear error unless ``env`` has (H, W, 3) uint8 image observations and
-    ``Discrete`` actions, which is what RLVC needs."""
-    check_image_space(env.observation_space, "RLVC")
-    if not isinstance(env.action_space, gym.spaces.Discrete):
-        raise TypeError(f"RLVC needs a Discrete action space, got {env.action_space}")
+def check_image_env(env: gym.Env, continuous: bool = False) -> None:
+    """Raise a clear error unless ``env`` has (H, W, 3) uint8 image observations and the
+    actions that the learner needs: ``Discrete`` for RLVC, a bounded 1-D ``Box`` for RLJC
+    (``continuous``)."""
+    learner = "RLJC" if continuous else "RLVC"
+    check_image_space(env.observation_space, learner)
+    space = env.action_space
+    if not continuous and not isinstance(space, gym.spaces.Discrete):
+        hint = " (RLJCAgent learns continuous actions)" if isinstance(space, gym.spaces.Box) else ""
+        raise TypeError(f"RLVC needs a Discrete action space, got {space}{hint}")
+    if continuous and not (
+        isinstance(space, gym.spaces.Box) and len(space.shape) == 1 and space.is_bounded()
+    ):
+        hint = (
+            " (RLVCAgent learns discrete actions)" if isinstance(space, gym.spaces.Discrete) else ""
+        )
+        raise TypeError(f"RLJC needs a bounded Box action space of shape (m,), got {space}{hint}")
 
 
 @dataclass
@@ -58,9 +70,15 @@ class Transitions:
         return len(self.actions)
 
 
-def random_policy(n_actions: int) -> ExplorationPolicy:
-    """Uniformly random actions in ``range(n_actions)`` for a batch of observations."""
-    return lambda observations, rng: rng.integers(n_actions, size=len(observations))
+def random_policy(space: int | gym.spaces.Box) -> ExplorationPolicy:
+    """Uniformly random actions for a batch of observations: ids in ``range(space)``, or
+    (B, m) points of a bounded ``Box``."""
+    if isinstance(space, gym.spaces.Box):
+        low, high = space.low.astype(np.float64), space.high.astype(np.float64)
+        return lambda observations, rng: rng.uniform(
+            low, high, size=(len(observations), *low.shape)
+        )
+    return lambda observations, rng: rng.integers(space, size=len(observations))
 
 
 def vector_copies(env: gym.Env, n_envs: int) -> gym.vector.VectorEnv:
@@ -107,7 +125,7 @@ def collect(
     ``max_episode_steps`` of ``gym.make``), or after ``max_blocked`` blocked moves in a row.
 
     Args:
-        env: image env with Discrete actions.
+        env: image env with Discrete actions, or continuous ones (a bounded 1-D Box).
         n: number of interactions.
         policy: batched exploration policy (default: uniformly random actions).
         seed: seeds the first reset of each env copy (``seed + i``) and the policy's generator.
@@ -117,13 +135,14 @@ def collect(
         n_envs: episodes run side by side on copies of ``env`` (``vector_copies``), so that the
             policy sees batches of ``n_envs`` views.
     """
-    check_image_env(env)
+    continuous = isinstance(env.action_space, gym.spaces.Box)
+    check_image_env(env, continuous)
     if n < 1:
         raise ValueError(f"need at least one interaction, got n={n}")
     if n_envs < 1:
         raise ValueError(f"n_envs must be >= 1, got {n_envs}")
     rng = np.random.default_rng(seed)
-    policy = policy or random_policy(int(env.action_space.n))
+    policy = policy or random_policy(env.action_space if continuous else int(env.action_space.n))
     envs = vector_copies(env, n_envs)
     percepts: list[np.ndarray] = []
     positions: list[np.ndarray] = []
@@ -147,7 +166,7 @@ def collect(
         for i in range(min(n_envs, n - len(act))):  # the last round may need fewer
             following = current[i] if same[i] else add(obs[i], infos, i)
             obs_i.append(current[i])
-            act.append(int(actions[i]))
+            act.append(actions[i])
             rew.append(float(rewards[i]))
             next_i.append(following)
             term.append(bool(terminated[i]))
@@ -163,7 +182,7 @@ def collect(
     return Transitions(
         percepts,
         np.asarray(obs_i),
-        np.asarray(act),
+        np.asarray(act, dtype=np.float64 if continuous else np.int64),
         np.asarray(rew, dtype=np.float64),
         np.asarray(next_i),
         np.asarray(term, dtype=bool),
@@ -178,7 +197,8 @@ class InteractionDatabase:
     Attributes:
         presence: (M, F) bool, feature presence of each unique percept.
         obs, next_obs: (N,) long percept indices of x_t and x_{t+1}.
-        actions: (N,) long. rewards: (N,) float64. terminal: (N,) bool.
+        actions: (N,) long action ids, or (N, m) float64 continuous actions.
+        rewards: (N,) float64. terminal: (N,) bool.
         positions: (M, 2) true positions when the env reported them, else None (plots and the
             true-grid ceiling only; the learner never reads them).
         occurrences: where each feature occurs in each percept (compounds included), for the
@@ -239,7 +259,10 @@ class InteractionDatabase:
         return cls(
             presence=occurrences.presence(extractor.n_features + len(compounds)),
             obs=torch.as_tensor(transitions.obs, dtype=torch.long),
-            actions=torch.as_tensor(transitions.actions, dtype=torch.long),
+            actions=torch.as_tensor(
+                transitions.actions,
+                dtype=torch.float64 if transitions.actions.ndim == 2 else torch.long,
+            ),
             rewards=torch.as_tensor(transitions.rewards, dtype=torch.float64),
             next_obs=torch.as_tensor(transitions.next_obs, dtype=torch.long),
             terminal=torch.as_tensor(transitions.terminal, dtype=torch.bool),

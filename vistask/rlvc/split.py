@@ -15,6 +15,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numpy as np
 import torch
 from scipy import stats
 
@@ -33,6 +34,40 @@ class Split:
 def sse(n: torch.Tensor, s1: torch.Tensor, s2: torch.Tensor) -> torch.Tensor:
     """Sum of squared deviations from counts, sums, sums of squares (0 for empty groups)."""
     return (s2 - s1 * s1 / n.clamp_min(1)).clamp_min(0)
+
+
+def welch_splits(
+    n_a: torch.Tensor,
+    s1_a: torch.Tensor,
+    s2_a: torch.Tensor,
+    n_b: torch.Tensor,
+    s1_b: torch.Tensor,
+    s2_b: torch.Tensor,
+    alpha: float | torch.Tensor,
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Score candidate splits of TD errors into two sides a and b, each given by its counts,
+    sums and sums of squares (K,) float64, at significance level ``alpha`` (one, or (K,)).
+
+    Returns:
+        reduction (K,): SSE(a + b) - SSE(a) - SSE(b); p (K,): Welch's two-sided p-value (1
+        where it cannot pass); significant (K,) bool: reduction > 0 and p < alpha.
+    """
+    sse_a, sse_b = sse(n_a, s1_a, s2_a), sse(n_b, s1_b, s2_b)
+    reduction = sse(n_a + n_b, s1_a + s1_b, s2_a + s2_b) - sse_a - sse_b
+    # Welch's t for every candidate, in torch; exact p-values (scipy) only where |t| beats the
+    # normal quantile, a lower bound of every Student quantile, so the rest cannot pass.
+    se2_a, se2_b = sse_a / (n_a - 1) / n_a, sse_b / (n_b - 1) / n_b
+    diff = s1_a / n_a - s1_b / n_b
+    t = diff.abs() / (se2_a + se2_b).sqrt()  # inf for a perfect split, nan for no difference
+    z = torch.as_tensor(stats.norm.isf(torch.as_tensor(alpha).numpy() / 2))
+    maybe = (reduction > 0) & (t.nan_to_num(0.0) > z)
+    p = torch.ones_like(t)
+    if maybe.any():
+        a, b = se2_a[maybe], se2_b[maybe]
+        df = (a + b) ** 2 / (a**2 / (n_a[maybe] - 1) + b**2 / (n_b[maybe] - 1))
+        df = df.nan_to_num(nan=1.0).clamp_min(1)
+        p[maybe] = torch.from_numpy(2 * stats.t.sf(t[maybe].numpy(), df.numpy()))
+    return reduction, p, maybe & (p < alpha)
 
 
 def find_splits(
@@ -100,27 +135,10 @@ def find_splits(
     n_f = n_f[candidate].double()
     n_gc, s1_gc, s2_gc = n_g[cg], s1_g[cg], s2_g[cg]
 
-    n_nf, s1_nf, s2_nf = n_gc - n_f, s1_gc - s1_f, s2_gc - s2_f
-    sse_f, sse_nf = sse(n_f, s1_f, s2_f), sse(n_nf, s1_nf, s2_nf)
-    reduction = sse(n_gc, s1_gc, s2_gc) - sse_f - sse_nf
-    valid = reduction > 0
+    reduction, p, significant = welch_splits(
+        n_f, s1_f, s2_f, n_gc - n_f, s1_gc - s1_f, s2_gc - s2_f, alpha
+    )
     state_of, action_of = active // n_actions, active % n_actions
-
-    # Welch's t for every candidate, in torch; exact p-values (scipy) only where |t| beats the
-    # normal quantile, a lower bound of every Student quantile, so the rest cannot pass.
-    v_f, v_nf = sse_f / (n_f - 1), sse_nf / (n_nf - 1)
-    se2_f, se2_nf = v_f / n_f, v_nf / n_nf
-    diff = s1_f / n_f - s1_nf / n_nf
-    t = diff.abs() / (se2_f + se2_nf).sqrt()  # inf for a perfect split, nan for no difference
-    z = float(stats.norm.isf(alpha / 2))
-    maybe = valid & (t.nan_to_num(0.0) > z)
-    p = torch.ones_like(t)
-    if maybe.any():
-        a, b = se2_f[maybe], se2_nf[maybe]
-        df = (a + b) ** 2 / (a**2 / (n_f[maybe] - 1) + b**2 / (n_nf[maybe] - 1))
-        df = df.nan_to_num(nan=1.0).clamp_min(1)
-        p[maybe] = torch.from_numpy(2 * stats.t.sf(t[maybe].numpy(), df.numpy()))
-    significant = maybe & (p < alpha)
 
     # Eq. (7) among the significant candidates: the purest split of every class; among equal
     # ones (features with the same presence split alike), the first in (action, feature) order.
@@ -141,3 +159,98 @@ def find_splits(
         for k in chosen
     ]
     return sorted(splits, key=lambda split: -split.reduction)
+
+
+@dataclass
+class ThresholdSplit:
+    """A significant split of class ``state`` on "action component ``dim`` >= ``threshold``"."""
+
+    state: int
+    dim: int
+    threshold: float
+    reduction: float
+    p_value: float
+
+
+def find_threshold_splits(
+    states: torch.Tensor,
+    actions: torch.Tensor,
+    deltas: torch.Tensor,
+    n_states: int,
+    alpha: float = 0.05,
+    min_count: int = 10,
+) -> list[ThresholdSplit]:
+    """Best significant split of every class on one component of a continuous action.
+
+    The candidate thresholds of a class are, per action dimension, the midpoints between
+    consecutive distinct values of the actions seen in the class (paper 2.5.3), scored like a
+    feature from cumulative sums over the actions sorted per class. The best cut of a class
+    is tested with Welch's t-test at ``alpha`` divided by the class's number of cuts.
+
+    Args:
+        states: (N,) class of each interaction.
+        actions: (N, m) float actions.
+        deltas: (N,) TD errors.
+        n_states: number of classes S.
+        alpha, min_count: as in ``find_splits``.
+
+    Returns:
+        One ``ThresholdSplit`` per class whose best threshold is significant (any dimension).
+    """
+    if actions.ndim != 2 or len(actions) != len(states):
+        raise ValueError(f"actions must be (N, m) with N = {len(states)}, got {actions.shape}")
+    deltas = deltas.double()
+    best: dict[int, ThresholdSplit] = {}
+    n_class = torch.bincount(states, minlength=n_states)
+    start_of_class = torch.cumsum(n_class, 0) - n_class
+    for dim in range(actions.shape[1]):
+        a = actions[:, dim].double()
+        order = torch.from_numpy(np.lexsort((a.numpy(), states.numpy())))  # class, then a
+        s, a, d = states[order], a[order], deltas[order]
+        # Side "below" = the first k + 1 interactions of the class in this order.
+        rank = torch.arange(len(s)) - start_of_class[s]
+        n_b = (rank + 1).double()
+        c1, c2 = torch.cumsum(d, 0), torch.cumsum(d * d, 0)
+        before = start_of_class[s] - 1  # cumulative sums up to the class's start
+        base1 = torch.where(before >= 0, c1[before.clamp_min(0)], 0.0)
+        base2 = torch.where(before >= 0, c2[before.clamp_min(0)], 0.0)
+        s1_b, s2_b = c1 - base1, c2 - base2
+        n_all = n_class[s].double()
+        end = start_of_class[s] + n_class[s] - 1  # last interaction of the class
+        s1_all, s2_all = c1[end] - base1, c2[end] - base2
+        following = torch.clamp(torch.arange(len(s)) + 1, max=len(s) - 1)
+        cut = (
+            (n_b >= min_count)
+            & (n_all - n_b >= min_count)
+            & (s[following] == s)
+            & (a[following] > a)  # a threshold between two distinct values
+        )
+        k = torch.nonzero(cut).flatten()
+        if len(k) == 0:
+            continue
+        n_a, s1_a, s2_a = n_all[k] - n_b[k], s1_all[k] - s1_b[k], s2_all[k] - s2_b[k]
+        reduction = sse(n_all[k], s1_all[k], s2_all[k]) - sse(n_b[k], s1_b[k], s2_b[k])
+        reduction -= sse(n_a, s1_a, s2_a)
+        # The best cut of each class, tested at alpha over the class's number of cuts: the
+        # largest of many correlated statistics would pass an uncorrected test by chance.
+        state_of = s[k]
+        cuts = torch.bincount(state_of, minlength=n_states)
+        top = torch.full((n_states,), -torch.inf, dtype=torch.float64)
+        top.scatter_reduce_(0, state_of, reduction, "amax")
+        tops = torch.nonzero(reduction == top[state_of]).flatten()
+        first = torch.full((n_states,), len(tops)).scatter_reduce_(
+            0, state_of[tops], torch.arange(len(tops)), "amin"
+        )
+        i = tops[first[first < len(tops)]]
+        _, p, significant = welch_splits(
+            n_b[k[i]], s1_b[k[i]], s2_b[k[i]], n_a[i], s1_a[i], s2_a[i],
+            alpha / cuts[state_of[i]].double(),
+        )  # fmt: skip
+        for j in torch.nonzero(significant).flatten().tolist():
+            state, cut_at = int(state_of[i[j]]), int(k[i[j]])
+            if state not in best or reduction[i[j]] > best[state].reduction:
+                threshold = float((a[cut_at] + a[following[cut_at]]) / 2)
+                best[state] = ThresholdSplit(
+                    state, dim, threshold, float(reduction[i[j]]), float(p[j])
+                )
+    return sorted(best.values(), key=lambda split: -split.reduction)

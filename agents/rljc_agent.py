@@ -1,0 +1,116 @@
+"""RLJCAgent: RLJC on any Gymnasium image environment with continuous actions, SB3's API."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+import torch
+
+from vistask.agents.visual_agent import VisualAgent
+from vistask.rlvc import RLJC, JointClassifier
+
+
+class RLJCAgent(VisualAgent):
+    """Learns joint classes of percepts and continuous actions by RLJC (paper 2.5.3).
+
+    One decision tree splits the joint space of percepts and actions: a node tests a visual
+    feature or "action component i >= t". The joint classes compatible with a percept each
+    carry a box of actions; the agent acts at the centre of the box of highest Q.
+
+    ``learn(total_timesteps)`` collects ``databases`` equal databases of interactions: the
+    first with uniformly random actions, each later one on the classes learned so far, drawing
+    an action uniformly inside the best box (with probability ``epsilon`` inside any compatible
+    box); each database joins the earlier ones. After each database, RLJC stages run until no
+    joint class splits. SIFT keypoints of every percept are matched to a vocabulary of
+    ``n_words`` visual features fitted on the first database; a class is split where a feature
+    or an action threshold (a midpoint between the actions seen in the class) reduces the
+    variance of the TD errors significantly. Callbacks, ``tensorboard_log`` (``rljc/classes``,
+    ``rljc/selected_features``, ``rljc/mean_abs_td``, ``rljc/splits``) and a second ``learn``
+    call behave as in ``RLVCAgent``.
+
+    Example:
+        >>> import gymnasium as gym, vistask.envs
+        >>> env = gym.make("vistask/VisualMazeContinuous-v0")
+        >>> agent = RLJCAgent(env, seed=0).learn(total_timesteps=60_000)
+        >>> action, _ = agent.predict(obs)        # (1,) float32 angle for one image
+        >>> agent.save("rljc.pt"); agent = RLJCAgent.load("rljc.pt", env=env)
+
+    Args:
+        env: env with (H, W, 3) or (H, W) uint8 image observations and a bounded ``Box``
+            action space of shape (m,) (``None`` only when loading).
+        n_words: vocabulary size: the number of visual features.
+        databases: number of equal databases that ``total_timesteps`` is split into.
+        alpha: significance level of the split t-tests (Welch).
+        min_count: minimum interactions on each side of a split.
+        max_stages: stage cap of one ``learn`` call.
+        epsilon: share of exploring draws inside a random compatible box, in the later
+            databases and in ``predict(deterministic=False)``.
+        n_envs: episodes collected side by side on the classes.
+        max_keypoints: SIFT keeps the strongest keypoints of each percept (0: all).
+        gamma: discount (default: the env's ``gamma`` attribute if it has one, else 0.99).
+        tensorboard_log: folder of TensorBoard runs (None: no logging).
+        seed: seeds the episodes, the exploration and the vocabulary.
+    """
+
+    continuous = True
+    learner_class = RLJC
+
+    def __init__(
+        self,
+        env: gym.Env | None,
+        n_words: int = 8192,
+        databases: int = 3,
+        alpha: float = 0.05,
+        min_count: int = 10,
+        max_stages: int = 300,
+        epsilon: float = 0.1,
+        n_envs: int = 128,
+        max_keypoints: int = 24,
+        gamma: float | None = None,
+        tensorboard_log: str | Path | None = None,
+        seed: int = 0,
+    ) -> None:
+        super().__init__(
+            env,
+            n_words,
+            databases,
+            alpha,
+            min_count,
+            max_stages,
+            epsilon,
+            n_envs,
+            max_keypoints,
+            gamma,
+            tensorboard_log,
+            seed,
+        )
+
+    @property
+    def rljc(self) -> RLJC | None:
+        """The learner: joint classes, Q, stage history."""
+        return self.learner
+
+    def _new_learner(self) -> RLJC:
+        space = self.action_space
+        return RLJC(
+            self.extractor.n_features,
+            space.low.tolist(),
+            space.high.tolist(),
+            self.gamma,
+            self.alpha,
+            self.min_count,
+        )
+
+    def _greedy(self, presence: torch.Tensor) -> np.ndarray:
+        return self.rljc.greedy(presence)
+
+    def _explore(self, presence: torch.Tensor, rng: np.random.Generator) -> np.ndarray:
+        return self.rljc.explore(presence, self.epsilon, rng)
+
+    @property
+    def classifier(self) -> JointClassifier:
+        """Image -> compatible joint classes and their boxes (``vistask.wrappers.JointClasses``)."""
+        self._check_learned()
+        return JointClassifier(self.extractor, self.rljc.structure)

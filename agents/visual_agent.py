@@ -1,0 +1,357 @@
+"""What RLVCAgent and RLJCAgent share: a visual vocabulary fitted on the first database,
+databases collected random first then epsilon-greedily, stages of a learner after each, SB3's
+callbacks and TensorBoard, ``predict`` on one image or a batch, ``save`` and ``load``."""
+
+from __future__ import annotations
+
+import time
+import warnings
+from pathlib import Path
+from typing import Any, ClassVar
+
+import gymnasium as gym
+import numpy as np
+import torch
+
+from vistask.agents.sb3_model import SB3Model
+from vistask.checks import check_at_least, check_integers
+from vistask.features import SiftExtractor, VisualFeatureExtractor
+from vistask.rlvc import InteractionDatabase, StageRecord, check_image_env, collect
+from vistask.saving import load_state, save_state
+
+MAX_BLOCKED = 2  # an epsilon-greedy episode ends after this many blocked moves in a row
+VOCABULARY_SAMPLE = 20_000  # descriptors that k-means fits the vocabulary on
+
+
+def space_state(space: gym.spaces.Discrete | gym.spaces.Box) -> dict:
+    """An action space as plain values for a saved file."""
+    if isinstance(space, gym.spaces.Discrete):
+        return {"n": int(space.n)}
+    return {"low": space.low.tolist(), "high": space.high.tolist(), "dtype": str(space.dtype)}
+
+
+def space_from_state(state: dict) -> gym.spaces.Discrete | gym.spaces.Box:
+    if "n" in state:
+        return gym.spaces.Discrete(state["n"])
+    dtype = np.dtype(state["dtype"])
+    return gym.spaces.Box(np.array(state["low"], dtype), np.array(state["high"], dtype))
+
+
+class VisualAgent(SB3Model):
+    """Base of the agents that learn a decision structure over visual features.
+
+    A subclass says which actions it learns (``continuous``), makes its learner
+    (``_new_learner``), acts with it (``_greedy``, ``_explore``) and names the settings it adds
+    (``_extra_params``). Its learner has ``learn(db, max_stages, progress, on_stage)``,
+    ``history``, ``compounds``, ``state_dict`` and ``from_state_dict``.
+    """
+
+    continuous: ClassVar[bool] = False
+    learner_class: ClassVar[type]
+
+    def __init__(
+        self,
+        env: gym.Env | None,
+        n_words: int,
+        databases: int,
+        alpha: float,
+        min_count: int,
+        max_stages: int,
+        epsilon: float,
+        n_envs: int,
+        max_keypoints: int,
+        gamma: float | None,
+        tensorboard_log: str | Path | None,
+        seed: int,
+    ) -> None:
+        counts = {
+            "n_words": n_words,
+            "databases": databases,
+            "min_count": min_count,
+            "max_stages": max_stages,
+            "n_envs": n_envs,
+            "max_keypoints": max_keypoints,
+        }
+        check_integers(**counts)
+        check_at_least(2, n_words=n_words, min_count=min_count)
+        check_at_least(1, databases=databases, max_stages=max_stages, n_envs=n_envs)
+        check_at_least(0, max_keypoints=max_keypoints)
+        if not 0 < alpha < 1:
+            raise ValueError(f"alpha must be in (0, 1), got {alpha!r}")
+        if not 0 <= epsilon <= 1:
+            raise ValueError(f"epsilon must be in [0, 1], got {epsilon!r}")
+        if gamma is None:
+            gamma = getattr(env.unwrapped, "gamma", 0.99) if env is not None else 0.99
+        if not 0 <= gamma < 1:
+            raise ValueError(f"gamma must be in [0, 1), got {gamma!r}")
+        self.n_words, self.databases = int(n_words), int(databases)
+        self.alpha, self.min_count, self.max_stages = float(alpha), int(min_count), max_stages
+        self.epsilon, self.n_envs, self.max_keypoints = float(epsilon), n_envs, max_keypoints
+        self.gamma, self.seed = float(gamma), int(seed)
+        self.tensorboard_log = tensorboard_log
+        self.env: gym.Env | None = None
+        self.observation_space: gym.spaces.Box | None = None
+        self.action_space: gym.spaces.Discrete | gym.spaces.Box | None = None
+        self.env_id: str | None = None
+        if env is not None:
+            self.set_env(env)
+        self.extractor: VisualFeatureExtractor | None = None
+        self.learner = None
+        self.database: InteractionDatabase | None = None
+        self.num_timesteps = 0
+        self.timing = {"collect": 0.0, "extract": 0.0, "vocabulary": 0.0}
+        self._next_seed = self.seed  # env copy i of the next database resets with this + i
+        self._rng = np.random.default_rng(self.seed)  # predict(deterministic=False)
+
+    # -- what a subclass adds ---------------------------------------------------------------
+    def _new_learner(self):
+        raise NotImplementedError
+
+    def _greedy(self, presence: torch.Tensor) -> np.ndarray:
+        """(N, F) presence -> (N,) or (N, m) greedy actions."""
+        raise NotImplementedError
+
+    def _explore(self, presence: torch.Tensor, rng: np.random.Generator) -> np.ndarray:
+        """(N, F) presence -> (N,) or (N, m) exploring actions (rate ``epsilon``)."""
+        raise NotImplementedError
+
+    def _extra_params(self) -> dict:
+        """The subclass's own constructor arguments, for ``save``."""
+        return {}
+
+    # -- env --------------------------------------------------------------------------------
+    def set_env(self, env: gym.Env) -> None:
+        """Use ``env`` from now on; a learned agent checks that its spaces are the ones it
+        learned on."""
+        check_image_env(env, self.continuous)
+        if self.observation_space is not None:
+            self._check_spaces(env)
+        self.env, self._vec_env = env, None
+        self.observation_space, self.action_space = env.observation_space, env.action_space
+        self.env_id = self.env_id or (env.spec.id if env.spec is not None else None)
+
+    def _check_spaces(self, env: gym.Env) -> None:
+        space = env.observation_space
+        if (
+            tuple(space.shape) != tuple(self.observation_space.shape)
+            or space.dtype != self.observation_space.dtype
+            or env.action_space != self.action_space
+        ):
+            raise ValueError(
+                f"the agent learned on {self.env_id or 'an env'} with observations "
+                f"{tuple(self.observation_space.shape)} {self.observation_space.dtype} and "
+                f"actions {self.action_space}; this env has {tuple(space.shape)} "
+                f"{space.dtype} and {env.action_space}"
+            )
+
+    # -- learning ---------------------------------------------------------------------------
+    def learn(
+        self,
+        total_timesteps: int,
+        callback: Any = None,
+        tb_log_name: str | None = None,
+        reset_num_timesteps: bool = True,
+        progress_bar: bool = False,
+    ):
+        """Collect ``total_timesteps`` interactions in ``databases`` databases and learn
+        classes from them, continuing from what the agent has learned already.
+
+        Args:
+            total_timesteps: interactions to collect in this call.
+            callback: SB3 callback(s), called once per stage (see the class).
+            tb_log_name: name of the TensorBoard run under ``tensorboard_log`` (default: the
+                learner's name).
+            reset_num_timesteps: count interactions from 0 and start a new TensorBoard run
+                (False: go on counting, in the same run).
+            progress_bar: show progress bars of the stages.
+        """
+        if not isinstance(total_timesteps, int | np.integer) or total_timesteps < self.databases:
+            raise ValueError(
+                f"total_timesteps must be an integer >= databases ({self.databases}), "
+                f"got {total_timesteps!r}"
+            )
+        name = tb_log_name or self.learner_class.__name__
+        callback = self._start_learning(callback, name, reset_num_timesteps)
+        sizes = [total_timesteps // self.databases] * self.databases
+        sizes[0] += total_timesteps - sum(sizes)
+        stages_left = self.max_stages
+        for size in sizes:
+            callback.on_rollout_start()
+            self._add_database(size)
+            callback.on_rollout_end()
+            stages_before = len(self.learner.history)
+            stopped = False
+
+            def on_stage(record: StageRecord) -> bool:
+                nonlocal stopped
+                stopped = not callback.on_step()  # before the dump: its records join the stage's
+                self._log_stage(record)
+                return not stopped
+
+            self.learner.learn(self.database, stages_left, progress_bar, on_stage)
+            stages_left -= len(self.learner.history) - stages_before
+            if stopped or stages_left <= 0:
+                break
+        self._end_learning(callback)
+        return self
+
+    def _add_database(self, size: int) -> None:
+        """Collect ``size`` interactions and add them to the database (the first database
+        also fits the vocabulary and starts the learner)."""
+        t0 = time.perf_counter()
+        exploring = self.learner is not None
+        n_envs = self.n_envs if exploring else 1
+        transitions = collect(
+            self.env,
+            size,
+            self._exploration_policy if exploring else None,
+            seed=self._next_seed,
+            max_blocked=MAX_BLOCKED if exploring else None,
+            n_envs=n_envs,
+        )
+        self._next_seed += n_envs  # no two databases share an episode seed
+        t1 = time.perf_counter()
+        detected, fitting = None, 0.0  # later databases: the cache holds what the policy saw
+        if self.extractor is None:
+            keypoints = SiftExtractor(max_keypoints=self.max_keypoints)
+            detected = keypoints.batch(transitions.percepts)
+            t2 = time.perf_counter()
+            self.extractor = VisualFeatureExtractor.fit(
+                detected=detected,
+                n_words=self._vocabulary_size(detected),
+                keypoints=keypoints,
+                max_descriptors=VOCABULARY_SAMPLE,
+                iters=10,
+                seed=self.seed,
+            )
+            self.learner = self._new_learner()
+            fitting = time.perf_counter() - t2
+        latest = InteractionDatabase.build(
+            transitions, self.extractor, detected, self.learner.compounds
+        )
+        self.database = (
+            latest if self.database is None else InteractionDatabase.concat(self.database, latest)
+        )
+        self.timing["collect"] += t1 - t0
+        self.timing["extract"] += time.perf_counter() - t1 - fitting
+        self.timing["vocabulary"] += fitting
+        self.num_timesteps += len(transitions)
+
+    def _vocabulary_size(self, detected: list) -> int:
+        """``n_words``, or half the descriptors of a first database too small to fit them."""
+        descriptors = sum(len(k) for k in detected)
+        if descriptors >= self.n_words:
+            return self.n_words
+        if descriptors < 4:
+            raise ValueError(
+                f"the first database shows only {descriptors} SIFT descriptors: collect more "
+                "interactions (total_timesteps) or use an env with textured images"
+            )
+        warnings.warn(
+            f"the first database has {descriptors} SIFT descriptors, too few for "
+            f"{self.n_words} words: fitting {descriptors // 2} (collect more interactions, "
+            "or lower n_words)",
+            stacklevel=4,
+        )
+        return descriptors // 2
+
+    def _log_stage(self, record: StageRecord) -> None:
+        prefix = self.learner_class.__name__.lower()
+        for key in ("classes", "selected_features", "mean_abs_td", "splits"):
+            self.logger.record(f"{prefix}/{key}", getattr(record, key))
+        self.logger.record("time/total_timesteps", self.num_timesteps)
+        self.logger.dump(step=record.stage)
+
+    def _exploration_policy(self, observations: np.ndarray, rng: np.random.Generator):
+        return self._explore(self._presence(observations), rng)
+
+    # -- acting -----------------------------------------------------------------------------
+    def _presence(self, images: np.ndarray) -> torch.Tensor:
+        """(N, F + C) presence of the words and the learned compounds in a batch of images."""
+        return self.extractor.presence(list(images), self.learner.compounds)
+
+    def _check_learned(self) -> None:
+        if self.learner is None or self.extractor is None:
+            raise RuntimeError("the agent has not learned yet: call learn() or load()")
+
+    def predict(
+        self,
+        observation: np.ndarray,
+        state: Any = None,
+        episode_start: np.ndarray | None = None,
+        deterministic: bool = True,
+    ) -> tuple[int | np.ndarray, None]:
+        """SB3's signature: one image -> (action, None); a batch (N, ...) -> (N actions,
+        None). Greedy on the learned classes; ``deterministic=False`` explores (see the
+        class). ``state`` and ``episode_start`` are unused (the policy has no memory)."""
+        self._check_learned()
+        images = np.asarray(observation)
+        shape = tuple(self.observation_space.shape)
+        single = images.shape == shape
+        if not single and images.shape[1:] != shape:
+            raise ValueError(
+                f"observation must be one image of shape {shape} or a batch (N, *{shape}), "
+                f"got shape {images.shape}"
+            )
+        if images.dtype != self.observation_space.dtype:
+            raise TypeError(
+                f"observation must have dtype {self.observation_space.dtype}, got {images.dtype}"
+            )
+        presence = self._presence(images[None] if single else images)
+        actions = self._greedy(presence) if deterministic else self._explore(presence, self._rng)
+        if isinstance(self.action_space, gym.spaces.Box):
+            actions = actions.astype(self.action_space.dtype)
+            return (actions[0] if single else actions), None
+        return (int(actions[0]) if single else actions), None
+
+    # -- persistence ------------------------------------------------------------------------
+    def save(self, path: str | Path) -> None:
+        """Save the vocabulary, the classes, Q and the settings (not the databases)."""
+        self._check_learned()
+        save_state(
+            path,
+            type(self).__name__,
+            {
+                "params": {
+                    "n_words": self.n_words,
+                    "databases": self.databases,
+                    "alpha": self.alpha,
+                    "min_count": self.min_count,
+                    "max_stages": self.max_stages,
+                    "epsilon": self.epsilon,
+                    "n_envs": self.n_envs,
+                    "max_keypoints": self.max_keypoints,
+                    "gamma": self.gamma,
+                    "seed": self.seed,
+                    **self._extra_params(),
+                },
+                "observation_shape": list(self.observation_space.shape),
+                "observation_dtype": str(self.observation_space.dtype),
+                "action_space": space_state(self.action_space),
+                "env_id": self.env_id,
+                "extractor": self.extractor.state_dict(),
+                "learner": self.learner.state_dict(),
+                "num_timesteps": self.num_timesteps,
+                "next_seed": self._next_seed,
+            },
+        )
+
+    @classmethod
+    def load(cls, path: str | Path, env: gym.Env | None = None, tensorboard_log: str | None = None):
+        """Load a saved agent; with ``env``, check that its spaces are the ones it learned on
+        (it can then ``learn`` more)."""
+        state = load_state(path, cls.__name__)
+        agent = cls(None, tensorboard_log=tensorboard_log, **state["params"])
+        dtype = np.dtype(state["observation_dtype"])
+        agent.observation_space = gym.spaces.Box(0, 255, tuple(state["observation_shape"]), dtype)
+        agent.action_space = space_from_state(state["action_space"])
+        agent.env_id = state["env_id"]
+        agent.extractor = VisualFeatureExtractor.from_state_dict(state["extractor"])
+        agent.learner = cls.learner_class.from_state_dict(state["learner"])
+        words = agent.extractor.n_features + len(agent.learner.compounds)
+        if agent.learner.n_features != words:
+            raise ValueError(f"{path}: its classes and vocabulary do not match (corrupt file)")
+        agent.num_timesteps, agent._next_seed = state["num_timesteps"], state["next_seed"]
+        if env is not None:
+            agent.set_env(env)
+        return agent
