@@ -25,7 +25,12 @@ def main() -> None:
     )
     parser.add_argument("--env", default="vistask/VisualMaze-v0", help="Gymnasium env id")
     parser.add_argument("--env-kwargs", type=json.loads, default={}, help="JSON dict for gym.make")
-    parser.add_argument("--interactions", type=positive_int, default=30_000)
+    parser.add_argument(
+        "--interactions",
+        type=positive_int,
+        default=None,
+        help="default 30,000 for RLVC, 60,000 for RLJC (the joint space needs more)",
+    )
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument(
         "--out", default=None, help="run directory (default runs/train_rlvc-<time>)"
@@ -33,14 +38,10 @@ def main() -> None:
     parser.add_argument("--compounds", action="store_true", help="let RLVC make compound features")
     parser.add_argument("--no-progress", action="store_true")
     args = parser.parse_args()
-    run = dict(
-        env_id=args.env,
-        env_kwargs=args.env_kwargs,
-        interactions=args.interactions,
-        seed=args.seed,
-        out=args.out,
-        progress=not args.no_progress,
-    )
+    run = dict(env_id=args.env, env_kwargs=args.env_kwargs, seed=args.seed, out=args.out)
+    run["progress"] = not args.no_progress
+    if args.interactions is not None:
+        run["interactions"] = args.interactions
     if isinstance(gym.make(args.env, **args.env_kwargs).action_space, gym.spaces.Box):
         if args.compounds:
             parser.error("--compounds applies to RLVC (discrete actions), not to RLJC")

@@ -11,7 +11,7 @@ import pytest
 import torch
 
 from vistask.experiments.compare import (
-    METHODS,
+    DISCRETE_METHODS,
     Comparison,
     RunResult,
     aggregate,
@@ -40,9 +40,9 @@ def quick_run(tmp_path_factory):
 def test_quick_comparison_writes_every_output(quick_run):
     out, summary = quick_run
     budgets = summary["budgets"]
-    assert set(summary["methods"]) == set(METHODS)
+    assert set(summary["methods"]) == set(DISCRETE_METHODS)
     on_disk = json.loads((out / "summary.json").read_text())
-    for name in METHODS:
+    for name in DISCRETE_METHODS:
         m = on_disk["methods"][name]
         for key in ("interactions_to_90pct", "final_return", "oracle_return", "seconds"):
             assert key in m
@@ -60,13 +60,13 @@ def test_quick_comparison_writes_every_output(quick_run):
     assert summary["oracle_return"] > on_disk["methods"]["random"]["final_return"]
 
     rows = list(csv.DictReader((out / "curves.csv").open()))
-    assert len(rows) == len(METHODS) * len(budgets)
-    assert {r["method"] for r in rows} == set(METHODS)
+    assert len(rows) == len(DISCRETE_METHODS) * len(budgets)
+    assert {r["method"] for r in rows} == set(DISCRETE_METHODS)
     table = (out / "table.md").read_text()
-    assert all(f"| {name} |" in table for name in METHODS)
+    assert all(f"| {name} |" in table for name in DISCRETE_METHODS)
     assert (out / "curves.png").read_bytes()[:4] == b"\x89PNG"
     runs = [json.loads(line) for line in (out / "runs.jsonl").read_text().splitlines()]
-    assert [(r["method"], r["seed"]) for r in runs] == [(m, s) for m in METHODS for s in (0, 1)]
+    assert [(r["method"], r["seed"]) for r in runs] == [(m, s) for m in DISCRETE_METHODS for s in (0, 1)]
 
 
 @pytest.mark.slow
@@ -144,3 +144,34 @@ def test_speedup_ratio_and_its_interval():
     ratios = speedups(methods, [500, 1000, 2000, 10_000, 20_000, 50_000])
     assert ratios["sb3_over_rlvc_90pct"] is None
     assert ratios["sb3_over_rlvc_90pct_lower_bound"] == 50.0
+
+
+def test_a_continuous_maze_compares_rljc_with_sac_and_ppo(tmp_path):
+    small = dict(
+        obstacles=((0.45, 0.0, 0.55, 0.6),),
+        exits=((0.0, 0.0, 0.2, 0.2), (0.8, 0.0, 1.0, 0.2)),
+        step=0.2,
+        pixels_per_unit=240.0,
+    )
+    config = Comparison.quick(
+        env_id="vistask/VisualMazeContinuous-v0",
+        env_kwargs=small,
+        budgets=(300, 600),
+        seeds=1,
+        eval_starts=10,
+    )
+    assert config.methods == ("rljc", "sac", "ppo", "random")
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        summary = compare(config, tmp_path, progress=False)
+    finally:
+        torch.set_num_threads(threads)
+    assert set(summary["methods"]) == set(config.methods)
+    assert summary["runs"][0]["classes"][-1] > 1  # RLJC's joint classes
+    assert "sb3_over_rljc_90pct" in summary["ratios"]
+    assert list((tmp_path / "tensorboard" / "seed0").glob("sac-sb3_*/events.*"))
+    with pytest.raises(ValueError, match="continuous actions: methods must"):
+        Comparison(env_id="vistask/VisualMazeContinuous-v0", methods=("rlvc",))
+    with pytest.raises(ValueError, match="discrete actions: methods must"):
+        Comparison(methods=("sac",))

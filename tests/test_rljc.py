@@ -20,6 +20,8 @@ from vistask.rlvc import (
     InteractionDatabase,
     JointClassifier,
     JointTree,
+    Split,
+    ThresholdSplit,
     find_threshold_splits,
     joint_values,
 )
@@ -184,6 +186,29 @@ def test_rljc_splits_on_the_feature_and_on_the_action_thresholds():
     assert explored.shape == (len(db.presence), 1) and np.all(np.abs(explored) <= 1)
     again = RLJC.from_state_dict(rljc.state_dict())
     assert np.array_equal(again.greedy(db.presence), rljc.greedy(db.presence))
+
+
+def test_classes_moved_along_with_splits_equal_classes_found_from_the_root():
+    db = synthetic_database(seed=5)
+    rljc = RLJC(db.n_features, [-1.0], [1.0], gamma=0.9)
+    rng = np.random.default_rng(5)
+    classes = rljc.structure.classify(db.presence, db.actions, db.obs)
+    pair_rows, pair_classes = rljc.structure.compatible(db.presence)
+    for _ in range(6):  # stages of random splits, each class at most once a stage
+        splits = {}
+        for state in rng.choice(rljc.n_classes, size=min(3, rljc.n_classes), replace=False):
+            low, high = rljc.structure.box_low[state, 0], rljc.structure.box_high[state, 0]
+            if rng.random() < 0.5:
+                splits[int(state)] = ThresholdSplit(int(state), 0, rng.uniform(low, high), 1, 0)
+            else:
+                splits[int(state)] = Split(int(state), int(rng.integers(6)), 0, 1.0, 0.0)
+        classes, pair_rows, pair_classes = rljc._apply(
+            splits, db, classes, pair_rows, pair_classes
+        )
+        assert torch.equal(classes, rljc.structure.classify(db.presence, db.actions, db.obs))
+        rows, expected = rljc.structure.compatible(db.presence)
+        order = np.lexsort((pair_classes.numpy(), pair_rows.numpy()))
+        assert torch.equal(pair_rows[order], rows) and torch.equal(pair_classes[order], expected)
 
 
 def test_rljc_refuses_a_database_of_discrete_actions():

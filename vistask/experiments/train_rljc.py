@@ -86,7 +86,7 @@ def joint_space_slice(agent: RLJCAgent, task: MazeTask, path: Path, y: float = 0
 def train_rljc(
     env_id: str = "vistask/VisualMazeContinuous-v0",
     env_kwargs: dict | None = None,
-    interactions: int = 30_000,
+    interactions: int = 60_000,
     seed: int = 0,
     out: str | Path | None = None,
     progress: bool = True,

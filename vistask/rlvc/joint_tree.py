@@ -213,23 +213,9 @@ class JointTree:
             presence: (N, F) bool feature presence of N percepts.
 
         Returns:
-            cell (N,) long: each percept's cell, numbered 0..C-1 within this batch; and the
-            cells' members as pairs member_cell (K,), member_class (K,): class
-            ``member_class[k]`` is compatible with cell ``member_cell[k]``.
+            ``cells_of`` of the percepts' compatible classes.
         """
-        rows, classes = self.compatible(presence)
-        # Two random 40-bit keys per class: a set's sums of keys identify it (a collision
-        # of both sums between two distinct sets is out of reach at these sizes).
-        keys = torch.from_numpy(
-            np.random.default_rng(0).integers(0, 2**40, size=(self.n_classes, 2))
-        )
-        sums = torch.zeros(len(presence), 2, dtype=torch.long).index_add_(0, rows, keys[classes])
-        _, cell = torch.unique(sums, dim=0, return_inverse=True)
-        first_row = torch.full((int(cell.max()) + 1,), len(presence)).scatter_reduce_(
-            0, cell, torch.arange(len(presence)), "amin"
-        )
-        member = rows == first_row[cell[rows]]
-        return cell, cell[rows[member]], classes[member]
+        return cells_of(*self.compatible(presence), len(presence), self.n_classes)
 
     def state_dict(self) -> dict:
         return {
@@ -262,3 +248,30 @@ class JointTree:
         if tree.leaf_class != list(state["leaf_class"]):
             raise ValueError("the saved joint tree is inconsistent (corrupt file)")
         return tree
+
+
+def cells_of(
+    rows: torch.Tensor, classes: torch.Tensor, n_rows: int, n_classes: int
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Group N percepts by their sets of compatible classes.
+
+    Args:
+        rows, classes: (K,) pairs "class ``classes[k]`` is compatible with percept
+            ``rows[k]``", in any order, every percept in at least one.
+        n_rows, n_classes: N and the number of classes J.
+
+    Returns:
+        cell (N,) long: each percept's cell, numbered 0..C-1; and the cells' members as pairs
+        member_cell (K',), member_class (K',): class ``member_class[k]`` is compatible with
+        cell ``member_cell[k]``.
+    """
+    # Two random 40-bit keys per class: a set's sums of keys identify it (a collision of both
+    # sums between two distinct sets is out of reach at these sizes).
+    keys = torch.from_numpy(np.random.default_rng(0).integers(0, 2**40, size=(n_classes, 2)))
+    sums = torch.zeros(n_rows, 2, dtype=torch.long).index_add_(0, rows, keys[classes])
+    _, cell = torch.unique(sums, dim=0, return_inverse=True)
+    first_row = torch.full((int(cell.max()) + 1,), n_rows).scatter_reduce_(
+        0, cell, torch.arange(n_rows), "amin"
+    )
+    member = rows == first_row[cell[rows]]
+    return cell, cell[rows[member]], classes[member]

@@ -20,9 +20,9 @@ import torch
 from tqdm.auto import tqdm
 
 from vistask.rlvc.database import InteractionDatabase
-from vistask.rlvc.joint_tree import JointTree
+from vistask.rlvc.joint_tree import JointTree, cells_of
 from vistask.rlvc.learner import StageRecord, Timing, single_thread
-from vistask.rlvc.split import find_splits, find_threshold_splits
+from vistask.rlvc.split import Split, ThresholdSplit, find_splits, find_threshold_splits
 
 
 def joint_values(
@@ -145,12 +145,25 @@ class RLJC:
             self.timing.solve += time.perf_counter() - start
         return self._q
 
-    def solve(self, db: InteractionDatabase) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """Q (J,) of the current joint classes on ``db``, and the joint class (N,) and TD error
-        (N,) of every interaction."""
+    def solve(self, db: InteractionDatabase) -> tuple[torch.Tensor, torch.Tensor]:
+        """Q (J,) of the current joint classes on ``db`` and the TD error (N,) of every
+        interaction."""
         self._check_database(db)
         classes = self.structure.classify(db.presence, db.actions, db.obs)
-        cell, member_cell, member_class = self.structure.cells(db.presence)
+        return self._solve(db, classes, *self.structure.compatible(db.presence))
+
+    def _solve(
+        self,
+        db: InteractionDatabase,
+        classes: torch.Tensor,
+        pair_rows: torch.Tensor,
+        pair_classes: torch.Tensor,
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """``solve`` given the interactions' joint classes (N,) and the percepts' compatible
+        classes as pairs (K,)."""
+        cell, member_cell, member_class = cells_of(
+            pair_rows, pair_classes, len(db.presence), self.n_classes
+        )
         q = joint_values(
             classes,
             db.rewards,
@@ -165,7 +178,7 @@ class RLJC:
         v = v.scatter_reduce_(0, member_cell, q[member_class], "amax")
         v = torch.where(torch.isfinite(v), v, 0.0)
         bootstrap = torch.where(db.terminal, 0.0, v[cell[db.next_obs]])
-        return q, classes, db.rewards + self.gamma * bootstrap - q[classes]
+        return q, db.rewards + self.gamma * bootstrap - q[classes]
 
     def _check_database(self, db: InteractionDatabase) -> None:
         if db.n_features != self.n_features:
@@ -199,13 +212,21 @@ class RLJC:
             raise ValueError(f"max_stages must be >= 1, got {max_stages}")
         with single_thread():
             rows, features = db.interaction_features()
+            # The interactions' joint classes and the percepts' compatible classes, moved
+            # along with every split rather than found again from the root.
+            classes = self.structure.classify(db.presence, db.actions, db.obs)
+            pair_rows, pair_classes = self.structure.compatible(db.presence)
             bar = tqdm(range(max_stages), desc="RLJC stages", disable=not progress, leave=False)
             for _ in bar:
                 start = time.perf_counter()
-                q, classes, deltas = self.solve(db)
+                q, deltas = self._solve(db, classes, pair_rows, pair_classes)
                 self._q, self._pending = q, None
                 solved = time.perf_counter()
-                n_splits = self._split(rows, features, classes, db.actions, deltas)
+                splits = self._best_splits(rows, features, classes, db.actions, deltas)
+                classes, pair_rows, pair_classes = self._apply(
+                    splits, db, classes, pair_rows, pair_classes
+                )
+                n_splits = len(splits)
                 if n_splits:  # the acting Q is solved again when first needed
                     self._pending = db
                 done = time.perf_counter()
@@ -228,29 +249,60 @@ class RLJC:
                     break
         return self
 
-    def _split(self, rows, features, classes, actions, deltas) -> int:
-        """Split every joint class on its best significant test, a visual feature or an
-        action threshold (the larger variance reduction); returns the number of splits."""
+    def _best_splits(
+        self, rows, features, classes, actions, deltas
+    ) -> dict[int, Split | ThresholdSplit]:
+        """The best significant test of every joint class that has one: a visual feature or
+        an action threshold, whichever reduces the TD errors' variance more."""
         n = self.n_classes
         no_action = torch.zeros_like(classes)
-        best: dict[int, tuple[float, Callable[[], int]]] = {}
+        best: dict[int, Split | ThresholdSplit] = {}
         for split in find_splits(
             rows, features, classes, no_action, deltas, n, 1, self.n_features,
             self.alpha, self.min_count,
         ):  # fmt: skip
-            best[split.state] = (
-                split.reduction,
-                lambda s=split: self.structure.split_feature(s.state, s.feature),
-            )
+            best[split.state] = split
         for split in find_threshold_splits(classes, actions, deltas, n, self.alpha, self.min_count):
-            if split.state not in best or split.reduction > best[split.state][0]:
-                best[split.state] = (
-                    split.reduction,
-                    lambda s=split: self.structure.split_action(s.state, s.dim, s.threshold),
-                )
-        for _, split in best.values():
-            split()
-        return len(best)
+            if split.state not in best or split.reduction > best[split.state].reduction:
+                best[split.state] = split
+        return best
+
+    def _apply(
+        self,
+        splits: dict[int, Split | ThresholdSplit],
+        db: InteractionDatabase,
+        classes: torch.Tensor,
+        pair_rows: torch.Tensor,
+        pair_classes: torch.Tensor,
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Split the classes, then move the interactions that pass their class's new test to
+        the new class, and give the percepts compatible with a class split on an action the
+        new class as well. Returns the new ``classes``, ``pair_rows``, ``pair_classes``."""
+        n = self.n_classes
+        kind = torch.zeros(n, dtype=torch.long)  # 1: split on a feature, 2: on an action
+        feature, dim = torch.zeros(n, dtype=torch.long), torch.zeros(n, dtype=torch.long)
+        threshold, new = torch.zeros(n, dtype=torch.float64), torch.arange(n)
+        for state, split in splits.items():
+            if isinstance(split, ThresholdSplit):
+                new[state] = self.structure.split_action(state, split.dim, split.threshold)
+                kind[state], dim[state], threshold[state] = 2, split.dim, split.threshold
+            else:
+                new[state] = self.structure.split_feature(state, split.feature)
+                kind[state], feature[state] = 1, split.feature
+        k = kind[classes]
+        seen = db.presence[db.obs, feature[classes]]
+        above = db.actions[torch.arange(len(classes)), dim[classes]] >= threshold[classes]
+        classes = torch.where(((k == 1) & seen) | ((k == 2) & above), new[classes], classes)
+        k = kind[pair_classes]
+        both = k == 2  # the percept stays compatible with the lower and the upper class
+        extra_rows, extra_classes = pair_rows[both], new[pair_classes[both]]
+        seen = (k == 1) & db.presence[pair_rows, feature[pair_classes]]
+        pair_classes = torch.where(seen, new[pair_classes], pair_classes)
+        return (
+            classes,
+            torch.cat([pair_rows, extra_rows]),
+            torch.cat([pair_classes, extra_classes]),
+        )
 
     # -- acting -----------------------------------------------------------------------------
     def best_classes(self, presence: torch.Tensor) -> torch.Tensor:
