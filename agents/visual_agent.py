@@ -344,10 +344,15 @@ class VisualAgent(SB3Model):
         agent = cls(None, tensorboard_log=tensorboard_log, **state["params"])
         dtype = np.dtype(state["observation_dtype"])
         agent.observation_space = gym.spaces.Box(0, 255, tuple(state["observation_shape"]), dtype)
-        agent.action_space = space_from_state(state["action_space"])
+        # RLVCAgent files that name the actions by their number and the learner "rlvc".
+        if "action_space" in state:
+            agent.action_space = space_from_state(state["action_space"])
+        else:
+            agent.action_space = gym.spaces.Discrete(state["n_actions"])
         agent.env_id = state["env_id"]
         agent.extractor = VisualFeatureExtractor.from_state_dict(state["extractor"])
-        agent.learner = cls.learner_class.from_state_dict(state["learner"])
+        learner = state["learner"] if "learner" in state else state["rlvc"]
+        agent.learner = cls.learner_class.from_state_dict(learner)
         words = agent.extractor.n_features + len(agent.learner.compounds)
         if agent.learner.n_features != words:
             raise ValueError(f"{path}: its classes and vocabulary do not match (corrupt file)")

@@ -33,7 +33,7 @@ def main() -> None:
     )
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument(
-        "--out", default=None, help="run directory (default runs/train_rlvc-<time>)"
+        "--out", default=None, help="default runs/train_rlvc-<time> (RLJC: train_rljc-<time>)"
     )
     parser.add_argument("--compounds", action="store_true", help="let RLVC make compound features")
     parser.add_argument("--no-progress", action="store_true")
@@ -42,7 +42,9 @@ def main() -> None:
     run["progress"] = not args.no_progress
     if args.interactions is not None:
         run["interactions"] = args.interactions
-    if isinstance(gym.make(args.env, **args.env_kwargs).action_space, gym.spaces.Box):
+    env = gym.make(args.env, **args.env_kwargs)
+    env.close()
+    if isinstance(env.action_space, gym.spaces.Box):
         if args.compounds:
             parser.error("--compounds applies to RLVC (discrete actions), not to RLJC")
         train_rljc(**run)

@@ -66,7 +66,8 @@ def test_quick_comparison_writes_every_output(quick_run):
     assert all(f"| {name} |" in table for name in DISCRETE_METHODS)
     assert (out / "curves.png").read_bytes()[:4] == b"\x89PNG"
     runs = [json.loads(line) for line in (out / "runs.jsonl").read_text().splitlines()]
-    assert [(r["method"], r["seed"]) for r in runs] == [(m, s) for m in DISCRETE_METHODS for s in (0, 1)]
+    expected = [(m, s) for m in DISCRETE_METHODS for s in (0, 1)]
+    assert [(r["method"], r["seed"]) for r in runs] == expected
 
 
 @pytest.mark.slow

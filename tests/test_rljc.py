@@ -22,6 +22,7 @@ from vistask.rlvc import (
     JointTree,
     Split,
     ThresholdSplit,
+    collect,
     find_threshold_splits,
     joint_values,
 )
@@ -101,6 +102,13 @@ def test_joint_tree_round_trips_and_refuses_bad_splits():
         JointTree(3, [0.0], [1.0]).split_action(0, 1, 0.5)
     with pytest.raises(ValueError, match="low < high"):
         JointTree(3, [1.0], [0.0])
+    boxes = tree.box_low.copy(), tree.box_high.copy()
+    for bad in (-1, tree.n_classes):  # refused before anything changes
+        with pytest.raises(ValueError, match="no class"):
+            tree.split_action(bad, 0, 0.0)
+        with pytest.raises(ValueError, match="no class"):
+            tree.split_feature(bad, 0)
+    assert np.array_equal(tree.box_low, boxes[0]) and np.array_equal(tree.box_high, boxes[1])
 
 
 def test_threshold_split_search_finds_the_brute_force_best_cut():
@@ -143,7 +151,7 @@ def test_joint_values_equal_a_plain_value_iteration():
     members += [(c, c) for c in range(n_cells)]
     member_cell = torch.tensor([c for c, _ in members])
     member_class = torch.tensor([j for _, j in members])
-    q = joint_values(
+    q, _ = joint_values(
         classes, rewards, next_cells, terminal, member_cell, member_class, n_classes, 0.8
     )
     # A plain loop over interactions, iterated to its fixed point.
@@ -202,13 +210,18 @@ def test_classes_moved_along_with_splits_equal_classes_found_from_the_root():
                 splits[int(state)] = ThresholdSplit(int(state), 0, rng.uniform(low, high), 1, 0)
             else:
                 splits[int(state)] = Split(int(state), int(rng.integers(6)), 0, 1.0, 0.0)
-        classes, pair_rows, pair_classes = rljc._apply(
-            splits, db, classes, pair_rows, pair_classes
-        )
+        classes, pair_rows, pair_classes = rljc._apply(splits, db, classes, pair_rows, pair_classes)
         assert torch.equal(classes, rljc.structure.classify(db.presence, db.actions, db.obs))
         rows, expected = rljc.structure.compatible(db.presence)
         order = np.lexsort((pair_classes.numpy(), pair_rows.numpy()))
         assert torch.equal(pair_rows[order], rows) and torch.equal(pair_classes[order], expected)
+
+
+def test_collect_keeps_continuous_actions_given_as_a_flat_batch():
+    env = gym.make("vistask/VisualMazeContinuous-v0", **SMALL)
+    flat = collect(env, 40, lambda obs, rng: rng.uniform(-3, 3, size=len(obs)), n_envs=4)
+    assert flat.actions.shape == (40, 1) and flat.actions.dtype == np.float64
+    assert not np.all(flat.actions == np.round(flat.actions))
 
 
 def test_rljc_refuses_a_database_of_discrete_actions():

@@ -3,14 +3,16 @@ compatible joint classes."""
 
 from __future__ import annotations
 
-from typing import Protocol
+from typing import TYPE_CHECKING, Protocol
 
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
 from vistask.features import VisualFeatureExtractor, check_image_space
-from vistask.rlvc import JointClassifier
+
+if TYPE_CHECKING:
+    from vistask.rlvc import JointClassifier
 
 
 class Classifier(Protocol):

@@ -59,7 +59,8 @@ class MazeTask:
 
     def test_set(self, grid: int = 30) -> tuple[np.ndarray, np.ndarray]:
         """Percepts (N, H, W, 3) at the free points of a ``grid`` x ``grid`` grid of true
-        positions, and (N, 4) bool: the actions optimal there (within ``OPTIMAL_WITHIN``)."""
+        positions, and (N, A) bool: the oracle's moves (4 actions, or its directions on the
+        continuous maze) optimal there (within ``OPTIMAL_WITHIN``)."""
         points = grid_positions(self.env, grid)
         points = points[self.env.geometry.is_free(points)]
         q = self.oracle.q[(slice(None), *self.oracle.cell(points))].T  # (N, 4)

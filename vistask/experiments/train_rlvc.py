@@ -23,6 +23,7 @@ from stable_baselines3.common.evaluation import evaluate_policy as sb3_evaluate_
 
 import vistask.envs  # noqa: F401  (registers the environments)
 from vistask.agents import RLVCAgent
+from vistask.agents.visual_agent import VisualAgent
 from vistask.envs.car_plots import percepts_at, plot_car_policy, plot_road, state_grid
 from vistask.envs.maze_oracle import Policy
 from vistask.envs.maze_plots import percept_grid, plot_policy, plot_values
@@ -37,7 +38,7 @@ EVAL_EVERY = 50  # stages between evaluations logged while learning
 EVAL_STARTS = 100  # fixed maze starts (or seeded episodes on other envs) of an evaluation
 
 
-def agent_policy(agent: RLVCAgent) -> Policy:
+def agent_policy(agent: VisualAgent) -> Policy:
     """The agent as a batched ``Policy`` (it sees percepts only, never the true state)."""
     return lambda percepts, states: agent.predict(percepts)[0]
 
@@ -75,7 +76,7 @@ class Scorer:
         self.oracle_return = None if self.task is None else self.task.oracle_return
         self.last_returns: np.ndarray | None = None
 
-    def __call__(self, agent: RLVCAgent) -> float:
+    def __call__(self, agent: VisualAgent) -> float:
         if self.task is not None:
             self.last_returns = self.task.evaluate(agent_policy(agent)).returns
         else:

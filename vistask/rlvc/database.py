@@ -1,4 +1,4 @@
-"""The interaction database that RLVC's split search reads.
+"""The interaction database that the split searches of RLVC and RLJC read.
 
 Interactions (x_t, a_t, r_{t+1}, x_{t+1}, terminal) are stored as indices into a table of
 unique percepts, each percept as a row of a bool feature-presence matrix. Feature extraction,
@@ -70,15 +70,16 @@ class Transitions:
         return len(self.actions)
 
 
-def random_policy(space: int | gym.spaces.Box) -> ExplorationPolicy:
-    """Uniformly random actions for a batch of observations: ids in ``range(space)``, or
-    (B, m) points of a bounded ``Box``."""
+def random_policy(space: gym.spaces.Discrete | gym.spaces.Box) -> ExplorationPolicy:
+    """Uniformly random actions for a batch of observations: (B,) ids of a ``Discrete`` space,
+    or (B, m) points of a bounded ``Box``."""
     if isinstance(space, gym.spaces.Box):
         low, high = space.low.astype(np.float64), space.high.astype(np.float64)
         return lambda observations, rng: rng.uniform(
             low, high, size=(len(observations), *low.shape)
         )
-    return lambda observations, rng: rng.integers(space, size=len(observations))
+    n, start = int(space.n), int(space.start)
+    return lambda observations, rng: start + rng.integers(n, size=len(observations))
 
 
 def vector_copies(env: gym.Env, n_envs: int) -> gym.vector.VectorEnv:
@@ -142,7 +143,7 @@ def collect(
     if n_envs < 1:
         raise ValueError(f"n_envs must be >= 1, got {n_envs}")
     rng = np.random.default_rng(seed)
-    policy = policy or random_policy(env.action_space if continuous else int(env.action_space.n))
+    policy = policy or random_policy(env.action_space)
     envs = vector_copies(env, n_envs)
     percepts: list[np.ndarray] = []
     positions: list[np.ndarray] = []
@@ -182,7 +183,8 @@ def collect(
     return Transitions(
         percepts,
         np.asarray(obs_i),
-        np.asarray(act, dtype=np.float64 if continuous else np.int64),
+        # A (B,) batch of 1-D continuous actions is as valid as (B, 1): keep the space's shape.
+        np.asarray(act, np.float64).reshape(len(act), -1) if continuous else np.asarray(act),
         np.asarray(rew, dtype=np.float64),
         np.asarray(next_i),
         np.asarray(term, dtype=bool),
@@ -261,7 +263,7 @@ class InteractionDatabase:
             obs=torch.as_tensor(transitions.obs, dtype=torch.long),
             actions=torch.as_tensor(
                 transitions.actions,
-                dtype=torch.float64 if transitions.actions.ndim == 2 else torch.long,
+                dtype=torch.float64 if transitions.actions.dtype.kind == "f" else torch.long,
             ),
             rewards=torch.as_tensor(transitions.rewards, dtype=torch.float64),
             next_obs=torch.as_tensor(transitions.next_obs, dtype=torch.long),

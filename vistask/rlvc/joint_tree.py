@@ -12,8 +12,24 @@ side a new id, so that class ids stay stable across stages.
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 import torch
+
+
+class _Tables(NamedTuple):
+    """The tree as arrays, rebuilt after a split: what the batched queries index."""
+
+    feature: np.ndarray  # (nodes,) tested feature, -1 where none
+    dim: np.ndarray  # (nodes,) tested action dimension, -1 where none
+    threshold: np.ndarray  # (nodes,) threshold of an action test
+    child: np.ndarray  # (nodes, 2) "no" and "yes" children; a leaf is its own child
+    leaf_class: np.ndarray  # (nodes,) class id, -1 at internal nodes
+    leaf: np.ndarray  # (nodes,) bool
+    depth: int
+    box_low: np.ndarray  # (J, m)
+    box_high: np.ndarray  # (J, m)
 
 
 class JointTree:
@@ -52,7 +68,7 @@ class JointTree:
         self.leaf_class: list[int] = [0]
         self._leaf_of_class: list[int] = [0]
         self._boxes: list[tuple[np.ndarray, np.ndarray]] = [(low, high)]
-        self._tables: tuple | None = None
+        self._tables: _Tables | None = None
 
     @property
     def n_classes(self) -> int:
@@ -61,12 +77,12 @@ class JointTree:
     @property
     def box_low(self) -> np.ndarray:
         """(J, m) lower corners of the joint classes' action boxes."""
-        return np.stack([low for low, _ in self._boxes])
+        return self._node_tables().box_low
 
     @property
     def box_high(self) -> np.ndarray:
         """(J, m) upper corners of the joint classes' action boxes."""
-        return np.stack([high for _, high in self._boxes])
+        return self._node_tables().box_high
 
     @property
     def selected_features(self) -> list[int]:
@@ -77,9 +93,11 @@ class JointTree:
     def action_tests(self) -> int:
         return sum(d >= 0 for d in self.dim)
 
-    def _split(self, class_id: int, feature: int, dim: int, threshold: float) -> int:
+    def _check_class(self, class_id: int) -> None:
         if not 0 <= class_id < self.n_classes:
             raise ValueError(f"no class {class_id} (tree has {self.n_classes})")
+
+    def _split(self, class_id: int, feature: int, dim: int, threshold: float) -> int:
         leaf, new_class = self._leaf_of_class[class_id], self.n_classes
         no, yes = len(self.feature), len(self.feature) + 1
         self.feature += [-1, -1]
@@ -97,6 +115,7 @@ class JointTree:
 
     def split_feature(self, class_id: int, feature: int) -> int:
         """Split a class on a visual feature; returns the id of the "present" class."""
+        self._check_class(class_id)
         if not 0 <= feature < self.n_features:
             raise ValueError(f"feature {feature} outside 0..{self.n_features - 1}")
         self._boxes.append(self._boxes[class_id])
@@ -105,6 +124,7 @@ class JointTree:
     def split_action(self, class_id: int, dim: int, threshold: float) -> int:
         """Split a class on "action component ``dim`` >= ``threshold``"; returns the id of the
         upper class. The threshold must cut the class's box."""
+        self._check_class(class_id)
         if not 0 <= dim < self.n_dims:
             raise ValueError(f"action dimension {dim} outside 0..{self.n_dims - 1}")
         low, high = self._boxes[class_id]
@@ -119,7 +139,7 @@ class JointTree:
         self._boxes.append((upper_low, high))
         return self._split(class_id, -1, dim, float(threshold))
 
-    def _node_tables(self) -> tuple:
+    def _node_tables(self) -> _Tables:
         if self._tables is None:
             nodes = np.arange(len(self.feature))
             leaf = np.array(self.leaf_class) >= 0
@@ -128,7 +148,7 @@ class JointTree:
             depth = {0: 0}
             for node in np.flatnonzero(~leaf):
                 depth[self.no[node]] = depth[self.yes[node]] = depth[node] + 1
-            self._tables = (
+            self._tables = _Tables(
                 np.array(self.feature),
                 np.array(self.dim),
                 np.array(self.threshold),
@@ -136,6 +156,8 @@ class JointTree:
                 np.array(self.leaf_class),
                 leaf,
                 max(depth.values()),
+                np.stack([low for low, _ in self._boxes]),
+                np.stack([high for _, high in self._boxes]),
             )
         return self._tables
 
@@ -165,17 +187,18 @@ class JointTree:
         """
         bits = self._check(presence)
         actions = np.asarray(torch.as_tensor(actions, dtype=torch.float64).cpu())
-        rows = np.arange(len(bits)) if percepts is None else np.asarray(percepts)
+        rows = np.arange(len(bits)) if percepts is None else torch.as_tensor(percepts).cpu().numpy()
         if actions.shape != (len(rows), self.n_dims):
             raise ValueError(f"actions must be ({len(rows)}, {self.n_dims}), got {actions.shape}")
-        feature, dim, threshold, child, leaf_class, _, depth = self._node_tables()
+        t = self._node_tables()
+        feature, dim, threshold, child = t.feature, t.dim, t.threshold, t.child
         node, steps = np.zeros(len(rows), dtype=int), np.arange(len(rows))
-        for _ in range(depth):
+        for _ in range(t.depth):
             f, d = feature[node], dim[node]
             visual = bits[rows, np.maximum(f, 0)]
             above = actions[steps, np.maximum(d, 0)] >= threshold[node]
             node = child[node, np.where(d >= 0, above, visual) * 1]
-        return torch.as_tensor(leaf_class[node])
+        return torch.as_tensor(t.leaf_class[node])
 
     def compatible(self, presence: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """The joint classes compatible with each percept, as pairs sorted by row.
@@ -188,7 +211,8 @@ class JointTree:
             ``rows[k]``; every percept has at least one.
         """
         bits = self._check(presence)
-        feature, dim, _, child, leaf_class, leaf, _ = self._node_tables()
+        t = self._node_tables()
+        feature, dim, child, leaf_class, leaf = t.feature, t.dim, t.child, t.leaf_class, t.leaf
         rows, node = np.arange(len(bits)), np.zeros(len(bits), dtype=int)
         found_rows, found_classes = [], []
         while len(rows):

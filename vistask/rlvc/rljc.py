@@ -36,7 +36,7 @@ def joint_values(
     gamma: float,
     tol: float = 1e-8,
     max_iters: int = 10_000,
-) -> torch.Tensor:
+) -> tuple[torch.Tensor, torch.Tensor]:
     """Q over joint classes by value iteration on the count-based model.
 
     Q(j) = R(j) + gamma * sum_c T(j, c) V(c), with V(c) = max of Q over the classes compatible
@@ -52,7 +52,7 @@ def joint_values(
         gamma: discount factor.
 
     Returns:
-        Q (J,) float64, -inf for classes that no interaction visited.
+        Q (J,) float64, -inf for classes that no interaction visited; V (C,) of the cells.
     """
     if not 0 <= gamma < 1:
         raise ValueError(f"gamma must be in [0, 1), got {gamma}")
@@ -79,7 +79,7 @@ def joint_values(
         v = new_v
         if converged:
             break
-    return q
+    return q, v
 
 
 @dataclass
@@ -164,7 +164,7 @@ class RLJC:
         cell, member_cell, member_class = cells_of(
             pair_rows, pair_classes, len(db.presence), self.n_classes
         )
-        q = joint_values(
+        q, v = joint_values(
             classes,
             db.rewards,
             cell[db.next_obs],
@@ -174,9 +174,6 @@ class RLJC:
             self.n_classes,
             self.gamma,
         )
-        v = torch.full((int(cell.max()) + 1,), -torch.inf, dtype=torch.float64)
-        v = v.scatter_reduce_(0, member_cell, q[member_class], "amax")
-        v = torch.where(torch.isfinite(v), v, 0.0)
         bootstrap = torch.where(db.terminal, 0.0, v[cell[db.next_obs]])
         return q, db.rewards + self.gamma * bootstrap - q[classes]
 
@@ -305,9 +302,12 @@ class RLJC:
         )
 
     # -- acting -----------------------------------------------------------------------------
-    def best_classes(self, presence: torch.Tensor) -> torch.Tensor:
-        """(N, F) presence -> (N,) the compatible joint class of highest Q of each percept."""
-        rows, classes = self.structure.compatible(presence)
+    def best_classes(
+        self, presence: torch.Tensor, pairs: tuple[torch.Tensor, torch.Tensor] | None = None
+    ) -> torch.Tensor:
+        """(N, F) presence -> (N,) the compatible joint class of highest Q of each percept
+        (``pairs``: the percepts' ``structure.compatible`` if already known)."""
+        rows, classes = pairs if pairs is not None else self.structure.compatible(presence)
         q = self.q[classes]
         top = torch.full((len(presence),), -torch.inf, dtype=torch.float64)
         top.scatter_reduce_(0, rows, q, "amax")
@@ -329,18 +329,15 @@ class RLJC:
         """(N, m) actions drawn uniformly inside a box chosen epsilon-greedily among the
         classes compatible with each percept (the best one, or with probability ``epsilon``
         any one)."""
-        best = self.best_classes(presence).numpy()
-        rows, classes = (t.numpy() for t in self.structure.compatible(presence))
+        pairs = self.structure.compatible(presence)
+        best = self.best_classes(presence, pairs).numpy()
+        rows, classes = (t.numpy() for t in pairs)
         counts = np.bincount(rows, minlength=len(best))
         starts = np.cumsum(counts) - counts
         anyone = classes[starts + (rng.random(len(best)) * counts).astype(int)]
         chosen = np.where(rng.random(len(best)) < epsilon, anyone, best)
         low, high = self.structure.box_low[chosen], self.structure.box_high[chosen]
         return rng.uniform(low, high)
-
-    def values(self) -> torch.Tensor:
-        """(J,) Q of every joint class (-inf where unvisited)."""
-        return self.q
 
     def state_dict(self) -> dict:
         return {

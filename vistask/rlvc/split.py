@@ -9,6 +9,8 @@ equivalently we maximise the reduction of the sum of squared deviations
 which, unlike the raw eq. (7) value, is comparable across actions with different sample counts.
 Counts, sums and sums of squares of Δ for every (class, action, feature) are three scatter-adds
 over the sparse (interaction, feature) list: X^T 1, X^T Δ and X^T Δ² restricted to each group.
+RLJC's joint classes also split on action thresholds (``find_threshold_splits``), scored the
+same way from cumulative sums over the actions sorted per class.
 """
 
 from __future__ import annotations
@@ -184,8 +186,10 @@ def find_threshold_splits(
 
     The candidate thresholds of a class are, per action dimension, the midpoints between
     consecutive distinct values of the actions seen in the class (paper 2.5.3), scored like a
-    feature from cumulative sums over the actions sorted per class. The best cut of a class
-    is tested with Welch's t-test at ``alpha`` divided by the class's number of cuts.
+    feature from cumulative sums over the actions sorted per class. The best cut of a class,
+    over all dimensions, is tested with Welch's t-test at ``alpha`` divided by the class's
+    number of cuts: the largest of many correlated statistics would pass an uncorrected test
+    by chance.
 
     Args:
         states: (N,) class of each interaction.
@@ -195,62 +199,67 @@ def find_threshold_splits(
         alpha, min_count: as in ``find_splits``.
 
     Returns:
-        One ``ThresholdSplit`` per class whose best threshold is significant (any dimension).
+        One ``ThresholdSplit`` per class whose best threshold is significant.
     """
     if actions.ndim != 2 or len(actions) != len(states):
         raise ValueError(f"actions must be (N, m) with N = {len(states)}, got {actions.shape}")
-    deltas = deltas.double()
-    best: dict[int, ThresholdSplit] = {}
+    cuts = [
+        _cuts(states, actions[:, dim].double(), deltas.double(), n_states, min_count)
+        for dim in range(actions.shape[1])
+    ]
+    dims = torch.cat([torch.full((len(c[0]),), dim) for dim, c in enumerate(cuts)])
+    state_of, threshold, below, above = (torch.cat(column) for column in zip(*cuts, strict=True))
+    if len(state_of) == 0:
+        return []
+    reduction = sse(*(below + above).T) - sse(*below.T) - sse(*above.T)
+    best = torch.full((n_states,), -torch.inf, dtype=torch.float64)
+    best.scatter_reduce_(0, state_of, reduction, "amax")
+    tops = torch.nonzero(reduction == best[state_of]).flatten()
+    first = torch.full((n_states,), len(tops)).scatter_reduce_(
+        0, state_of[tops], torch.arange(len(tops)), "amin"
+    )
+    i = tops[first[first < len(tops)]]  # the first best cut of each class
+    n_cuts = torch.bincount(state_of, minlength=n_states)[state_of[i]].double()
+    _, p, significant = welch_splits(*below[i].T, *above[i].T, alpha / n_cuts)
+    i, p = i[significant], p[significant]
+    splits = [
+        ThresholdSplit(
+            int(state_of[k]), int(dims[k]), float(threshold[k]), float(reduction[k]), float(pk)
+        )
+        for k, pk in zip(i.tolist(), p.tolist(), strict=True)
+    ]
+    return sorted(splits, key=lambda split: -split.reduction)
+
+
+def _cuts(
+    states: torch.Tensor, a: torch.Tensor, deltas: torch.Tensor, n_states: int, min_count: int
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    """The candidate cuts of one action dimension ``a`` (N,) in every class.
+
+    Returns:
+        per cut: its class (K,), threshold (K,), and (K, 3) counts, sums and sums of squares of
+        the TD errors below and above it.
+    """
     n_class = torch.bincount(states, minlength=n_states)
     start_of_class = torch.cumsum(n_class, 0) - n_class
-    for dim in range(actions.shape[1]):
-        a = actions[:, dim].double()
-        order = torch.from_numpy(np.lexsort((a.numpy(), states.numpy())))  # class, then a
-        s, a, d = states[order], a[order], deltas[order]
-        # Side "below" = the first k + 1 interactions of the class in this order.
-        rank = torch.arange(len(s)) - start_of_class[s]
-        n_b = (rank + 1).double()
-        c1, c2 = torch.cumsum(d, 0), torch.cumsum(d * d, 0)
-        before = start_of_class[s] - 1  # cumulative sums up to the class's start
-        base1 = torch.where(before >= 0, c1[before.clamp_min(0)], 0.0)
-        base2 = torch.where(before >= 0, c2[before.clamp_min(0)], 0.0)
-        s1_b, s2_b = c1 - base1, c2 - base2
-        n_all = n_class[s].double()
-        end = start_of_class[s] + n_class[s] - 1  # last interaction of the class
-        s1_all, s2_all = c1[end] - base1, c2[end] - base2
-        following = torch.clamp(torch.arange(len(s)) + 1, max=len(s) - 1)
-        cut = (
-            (n_b >= min_count)
-            & (n_all - n_b >= min_count)
-            & (s[following] == s)
-            & (a[following] > a)  # a threshold between two distinct values
-        )
-        k = torch.nonzero(cut).flatten()
-        if len(k) == 0:
-            continue
-        n_a, s1_a, s2_a = n_all[k] - n_b[k], s1_all[k] - s1_b[k], s2_all[k] - s2_b[k]
-        reduction = sse(n_all[k], s1_all[k], s2_all[k]) - sse(n_b[k], s1_b[k], s2_b[k])
-        reduction -= sse(n_a, s1_a, s2_a)
-        # The best cut of each class, tested at alpha over the class's number of cuts: the
-        # largest of many correlated statistics would pass an uncorrected test by chance.
-        state_of = s[k]
-        cuts = torch.bincount(state_of, minlength=n_states)
-        top = torch.full((n_states,), -torch.inf, dtype=torch.float64)
-        top.scatter_reduce_(0, state_of, reduction, "amax")
-        tops = torch.nonzero(reduction == top[state_of]).flatten()
-        first = torch.full((n_states,), len(tops)).scatter_reduce_(
-            0, state_of[tops], torch.arange(len(tops)), "amin"
-        )
-        i = tops[first[first < len(tops)]]
-        _, p, significant = welch_splits(
-            n_b[k[i]], s1_b[k[i]], s2_b[k[i]], n_a[i], s1_a[i], s2_a[i],
-            alpha / cuts[state_of[i]].double(),
-        )  # fmt: skip
-        for j in torch.nonzero(significant).flatten().tolist():
-            state, cut_at = int(state_of[i[j]]), int(k[i[j]])
-            if state not in best or reduction[i[j]] > best[state].reduction:
-                threshold = float((a[cut_at] + a[following[cut_at]]) / 2)
-                best[state] = ThresholdSplit(
-                    state, dim, threshold, float(reduction[i[j]]), float(p[j])
-                )
-    return sorted(best.values(), key=lambda split: -split.reduction)
+    order = torch.from_numpy(np.lexsort((a.numpy(), states.numpy())))  # class, then a
+    s, a, d = states[order], a[order], deltas[order]
+    # Below the cut after row i: the rows of i's class up to i, in this order.
+    n_b = (torch.arange(len(s)) - start_of_class[s] + 1).double()
+    c1, c2 = torch.cumsum(d, 0), torch.cumsum(d * d, 0)
+    before = start_of_class[s] - 1  # cumulative sums up to the class's first row
+    base1 = torch.where(before >= 0, c1[before.clamp_min(0)], 0.0)
+    base2 = torch.where(before >= 0, c2[before.clamp_min(0)], 0.0)
+    end = start_of_class[s] + n_class[s] - 1  # the class's last row
+    n_all, s1_all, s2_all = n_class[s].double(), c1[end] - base1, c2[end] - base2
+    following = torch.clamp(torch.arange(len(s)) + 1, max=len(s) - 1)
+    cut = (
+        (n_b >= min_count)
+        & (n_all - n_b >= min_count)
+        & (s[following] == s)
+        & (a[following] > a)  # a threshold between two distinct values
+    )
+    k = torch.nonzero(cut).flatten()
+    below = torch.stack([n_b[k], (c1 - base1)[k], (c2 - base2)[k]], 1)
+    everything = torch.stack([n_all[k], s1_all[k], s2_all[k]], 1)
+    return s[k], (a[k] + a[following[k]]) / 2, below, everything - below
