@@ -22,7 +22,13 @@ from tqdm.auto import tqdm
 from vistask.rlvc.database import InteractionDatabase
 from vistask.rlvc.joint_tree import JointTree, cells_of
 from vistask.rlvc.learner import StageRecord, Timing, single_thread
-from vistask.rlvc.split import Split, ThresholdSplit, find_splits, find_threshold_splits
+from vistask.rlvc.split import (
+    Split,
+    ThresholdSplit,
+    find_splits,
+    find_threshold_splits,
+    first_in_group,
+)
 
 
 def joint_values(
@@ -313,10 +319,8 @@ class RLJC:
         top.scatter_reduce_(0, rows, q, "amax")
         # Among ties (and where no compatible class was visited), the first class in order.
         is_top = (q == top[rows]) | torch.isinf(top[rows])
-        pick = torch.full((len(presence),), len(rows)).scatter_reduce_(
-            0, rows[is_top], torch.nonzero(is_top).flatten(), "amin"
-        )
-        return classes[pick]
+        tops = torch.nonzero(is_top).flatten()
+        return classes[tops[first_in_group(rows[tops], len(presence))]]
 
     def greedy(self, presence: torch.Tensor) -> np.ndarray:
         """(N, F) bool presence -> (N, m) greedy actions: the centres of the best boxes."""

@@ -38,6 +38,19 @@ def sse(n: torch.Tensor, s1: torch.Tensor, s2: torch.Tensor) -> torch.Tensor:
     return (s2 - s1 * s1 / n.clamp_min(1)).clamp_min(0)
 
 
+def first_in_group(groups: torch.Tensor, n_groups: int) -> torch.Tensor:
+    """Position in ``groups`` (K,) of the first element of each group that occurs, by group.
+
+    Example:
+        >>> first_in_group(torch.tensor([2, 0, 2, 0]), 3)
+        tensor([1, 0])
+    """
+    first = torch.full((n_groups,), len(groups)).scatter_reduce_(
+        0, groups, torch.arange(len(groups)), "amin"
+    )
+    return first[first < len(groups)]
+
+
 def welch_splits(
     n_a: torch.Tensor,
     s1_a: torch.Tensor,
@@ -146,10 +159,7 @@ def find_splits(
     # ones (features with the same presence split alike), the first in (action, feature) order.
     best = torch.nonzero(significant).flatten()
     best = best[torch.argsort(reduction[best], descending=True, stable=True)]
-    first = torch.full((n_states,), len(best)).scatter_reduce_(
-        0, state_of[cg[best]], torch.arange(len(best)), "amin"
-    )
-    chosen = best[first[first < len(best)]].tolist()  # one candidate per splitting class
+    chosen = best[first_in_group(state_of[cg[best]], n_states)].tolist()  # one per class
     splits = [
         Split(
             int(state_of[cg[k]]),
@@ -215,10 +225,7 @@ def find_threshold_splits(
     best = torch.full((n_states,), -torch.inf, dtype=torch.float64)
     best.scatter_reduce_(0, state_of, reduction, "amax")
     tops = torch.nonzero(reduction == best[state_of]).flatten()
-    first = torch.full((n_states,), len(tops)).scatter_reduce_(
-        0, state_of[tops], torch.arange(len(tops)), "amin"
-    )
-    i = tops[first[first < len(tops)]]  # the first best cut of each class
+    i = tops[first_in_group(state_of[tops], n_states)]  # the first best cut of each class
     n_cuts = torch.bincount(state_of, minlength=n_states)[state_of[i]].double()
     _, p, significant = welch_splits(*below[i].T, *above[i].T, alpha / n_cuts)
     i, p = i[significant], p[significant]
