@@ -20,7 +20,7 @@ $(STAMP): pyproject.toml constraints.txt
 	# robosuite depends on opencv-python; keep exactly one OpenCV (the headless one) importable.
 	$(PIP) uninstall -y opencv-python
 	$(PIP) install -c constraints.txt --force-reinstall --no-deps opencv-python-headless
-	$(PY) -c "import cv2, torch, torchrl, gymnasium, stable_baselines3, robosuite, mujoco, roma, dd, minigrid"
+	$(PY) -c "import cv2, torch, torchrl, gymnasium, stable_baselines3, robosuite, mujoco, roma, dd, minigrid, ray, rliable.library"
 	touch $(STAMP)
 
 # Debian libraries for offscreen MuJoCo rendering (EGL / OSMesa) and Open3D.

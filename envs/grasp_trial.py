@@ -28,6 +28,7 @@ ground-truth poses uses (rendering costs more than a grasp at small control rate
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import logging
 import math
@@ -61,6 +62,7 @@ from vistask.envs.scene import (
 )
 from vistask.envs.tabletop import OBJECTS
 from vistask.grasp.learning import Workspace
+from vistask.parallel import ray_session
 from vistask.vision import Camera, Patches, PatchExtractor, RGBDView, view_patches
 
 # robosuite logs every controller-config load at INFO level; one line per trial env is noise.
@@ -567,3 +569,76 @@ class VectorGraspTrials:
 
     def close(self) -> None:
         self.env.close()
+
+
+class _TrialActor:
+    """One ``GraspTrialEnv`` inside a Ray actor."""
+
+    def __init__(self, object_kind: str, env_kwargs: dict[str, Any]) -> None:
+        self.env = GraspTrialEnv(object_kind, **env_kwargs)
+
+    def describe(self) -> tuple[Workspace, np.ndarray]:
+        return self.env.workspace, self.env.object_bounds
+
+    def reset(self, seed: int) -> np.ndarray:
+        return self.env.reset(seed=seed)[1]["object_pose"]
+
+    def execute(self, grasp: np.ndarray) -> tuple[float, dict[str, Any]]:
+        _, reward, _, _, info = self.env.step(grasp)
+        return reward, info
+
+
+class RayGraspTrials:
+    """Parallel grasp trials on Ray actors, each holding one ``GraspTrialEnv``: a
+    ``vistask.grasp.TrialRunner`` that runs on this machine's cores or on a Ray cluster.
+
+    Example:
+        >>> runner = RayGraspTrials("can", num_envs=8, address="ray://head:10001")
+        >>> poses = runner.reset(range(8)); success, info = runner.execute(grasps)
+        >>> runner.close()
+
+    Args:
+        object_kind: the target object.
+        num_envs: actors (one CPU each).
+        address: Ray cluster (default ``RAY_ADDRESS``; None: a local Ray with ``num_envs``
+            CPUs).
+        **env_kwargs: passed to ``GraspTrialEnv`` (``cameras`` defaults to () here).
+    """
+
+    def __init__(
+        self, object_kind: str, num_envs: int = 2, address: str | None = None, **env_kwargs: Any
+    ) -> None:
+        env_kwargs.setdefault("cameras", ())
+        self._stack = contextlib.ExitStack()
+        ray = self._ray = self._stack.enter_context(ray_session(num_envs, address))
+        actor = ray.remote(num_cpus=1)(_TrialActor)
+        self.actors = [actor.remote(object_kind, env_kwargs) for _ in range(num_envs)]
+        self.num_envs = num_envs
+        self.workspace, bounds = ray.get(self.actors[0].describe.remote())
+        self.object_bounds = np.array(bounds)  # writable, unlike Ray's zero-copy arrays
+        self.last_info: dict[str, Any] = {}
+
+    def reset(self, seeds: Sequence[int]) -> torch.Tensor:
+        """Place the objects with one seed per actor; returns (B, 7) object poses."""
+        if len(seeds) != self.num_envs:
+            raise ValueError(f"need {self.num_envs} seeds, got {len(seeds)}")
+        poses = self._ray.get(
+            [a.reset.remote(int(s)) for a, s in zip(self.actors, seeds, strict=True)]
+        )
+        return torch.as_tensor(np.stack(poses), dtype=torch.float32)
+
+    def execute(self, grasps: torch.Tensor) -> tuple[torch.Tensor, dict[str, Any]]:
+        """Execute (B, 7) world grasps; returns (B,) bool successes and the infos as arrays
+        (as ``VectorGraspTrials`` gives them)."""
+        grasps = np.asarray(torch.as_tensor(grasps, dtype=torch.float64).cpu())
+        done = self._ray.get(
+            [a.execute.remote(g) for a, g in zip(self.actors, grasps, strict=True)]
+        )
+        rewards = np.array([reward for reward, _ in done])
+        self.last_info = {key: np.array([info[key] for _, info in done]) for key in done[0][1]}
+        return torch.as_tensor(rewards > 0.5), self.last_info
+
+    def close(self) -> None:
+        for actor in self.actors:
+            self._ray.kill(actor)
+        self._stack.close()

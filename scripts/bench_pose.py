@@ -3,10 +3,13 @@
 Usage: python scripts/bench_pose.py [--out DIR] [--objects cereal milk bread hammer can box]
        [--scenes 10] [--quick] [--seed 1000] [--particles 2000] [--refine-iters 3]
        [--methods nbp open3d] [--threads 1] [--device cpu] [--pictures 1]
+       [--workers N] [--address ray://head:10001]
 Clean scenes have no distractor; cluttered ones have 3-4 and are drawn until the target is
 partly hidden in some camera. Writes DIR/summary.json (per method and condition:
 success_rate, median errors, seconds_per_scene, occlusion, per_object), DIR/results.md (the
-Markdown table), DIR/pictures/ (estimates drawn over the images) and TensorBoard scalars."""
+Markdown table), DIR/pictures/ (estimates drawn over the images) and TensorBoard scalars.
+--workers N spreads the scenes over N local Ray workers (one thread each), --address over a
+Ray cluster; the records are the same as in one process with --threads 1."""
 
 from __future__ import annotations
 
@@ -16,6 +19,7 @@ from pathlib import Path
 
 import torch
 
+from vistask.cli import positive_int
 from vistask.experiments.pose import PoseBenchmark, write_results
 from vistask.objects import NBP
 from vistask.runs import run_dir, tensorboard
@@ -48,6 +52,10 @@ def main() -> None:
     )
     parser.add_argument("--device", default="cpu", help="device of NBP (e.g. cuda)")
     parser.add_argument("--pictures", type=int, default=1, help="pictures per object, condition")
+    parser.add_argument(
+        "--workers", type=positive_int, default=1, help="scenes side by side (Ray workers)"
+    )
+    parser.add_argument("--address", default=None, help="Ray cluster to run the scenes on")
     args = parser.parse_args()
     out = run_dir("bench_pose", args.out)
     torch.set_num_threads(args.threads)
@@ -60,7 +68,9 @@ def main() -> None:
         nbp=NBP(n_particles=args.particles, refine_iters=args.refine_iters),
     )
     with tensorboard(out) as writer:
-        summary = bench.run(out, writer, pictures=args.pictures)
+        summary = bench.run(
+            out, writer, pictures=args.pictures, workers=args.workers, address=args.address
+        )
     print(write_results(summary, out, "Pose estimation: NBP vs Open3D"))
     print(f"wrote {out / 'summary.json'}")
 

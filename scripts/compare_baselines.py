@@ -7,14 +7,22 @@ python scripts/compare_baselines.py --quick              # tiny budgets (what th
 python scripts/compare_baselines.py --budgets 1000 2000 5000 10000 20000 --seeds 3
 python scripts/compare_baselines.py --env vistask/VisualMountainCar-v0 --grid rlvc
 python scripts/compare_baselines.py --env vistask/VisualMazeContinuous-v0 --budgets 3000 10000 30000
+python scripts/compare_baselines.py --address ray://head:10001   # on a running Ray cluster
+python scripts/compare_baselines.py --workers 1          # one run after another, in this process
+python scripts/compare_baselines.py --out runs/c         # again after a stop: runs what is missing
 tensorboard --logdir runs/compare-<time>/tensorboard     # eval/return of every method overlays
+
+The runs are Ray tasks on this machine's cores unless --workers 1; --address (or RAY_ADDRESS)
+sends them to a Ray cluster whose nodes have vistask installed.
 """
 
 import argparse
 import json
+import sys
 
 import torch
 
+from vistask.cli import positive_int
 from vistask.experiments.compare import DEFAULT_BUDGETS, METHODS, Comparison, compare
 
 
@@ -25,10 +33,14 @@ def main() -> None:
     parser.add_argument("--env", default="vistask/VisualMaze-v0")
     parser.add_argument("--env-kwargs", type=json.loads, default={}, help="JSON dict for gym.make")
     parser.add_argument("--methods", nargs="+", choices=METHODS, default=None)
-    parser.add_argument("--budgets", nargs="+", type=int, default=None, help=f"{DEFAULT_BUDGETS}")
-    parser.add_argument("--seeds", type=int, default=None, help="number of seeds (default 5)")
+    parser.add_argument(
+        "--budgets", nargs="+", type=positive_int, default=None, help=f"{DEFAULT_BUDGETS}"
+    )
+    parser.add_argument(
+        "--seeds", type=positive_int, default=None, help="number of seeds (default 5)"
+    )
     parser.add_argument("--seed0", type=int, default=0, help="first seed")
-    parser.add_argument("--eval-starts", type=int, default=None, help="default 100")
+    parser.add_argument("--eval-starts", type=positive_int, default=None, help="default 100")
     parser.add_argument(
         "--grid",
         type=lambda text: None if text == "rlvc" else int(text),
@@ -38,10 +50,23 @@ def main() -> None:
     )
     parser.add_argument("--device", default="cpu", help="torch device of the SB3 networks")
     parser.add_argument(
-        "--threads", type=int, default=None, help="torch CPU threads (1 on a busy machine)"
+        "--threads",
+        type=positive_int,
+        default=None,
+        help="torch CPU threads with --workers 1 (Ray gives each run one thread)",
+    )
+    parser.add_argument(
+        "--workers", type=positive_int, default=None, help="runs side by side (default: cores)"
+    )
+    parser.add_argument(
+        "--address", default=None, help="Ray cluster address (default: RAY_ADDRESS, else local)"
     )
     parser.add_argument("--quick", action="store_true", help="tiny budgets, 2 seeds")
-    parser.add_argument("--out", default=None, help="run directory (default runs/compare-<time>)")
+    parser.add_argument(
+        "--out",
+        default=None,
+        help="run directory (default runs/compare-<time>); an existing one is resumed",
+    )
     args = parser.parse_args()
     overrides = {
         "env_id": args.env,
@@ -61,7 +86,8 @@ def main() -> None:
     if args.threads:
         torch.set_num_threads(args.threads)
     config = Comparison.quick(**overrides) if args.quick else Comparison(**overrides)
-    compare(config, args.out)
+    summary = compare(config, args.out, workers=args.workers, address=args.address)
+    sys.exit(1 if summary["failed"] else 0)
 
 
 if __name__ == "__main__":

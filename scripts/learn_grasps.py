@@ -2,6 +2,7 @@
 
     python scripts/learn_grasps.py --out runs/grasps          # 3 objects, 300 trials each
     python scripts/learn_grasps.py --quick                    # a small smoke run
+    python scripts/learn_grasps.py --address ray://head:10001 --num-envs 32  # on a Ray cluster
     python scripts/learn_grasps.py --out runs/grasps --nbp-only --nbp-trials 20
                                    # grasp with NBP poses using the densities learned there
 
@@ -37,7 +38,12 @@ def main() -> None:
     parser.add_argument("--cycles", type=int, default=defaults["cycles"])
     parser.add_argument("--trials-per-cycle", type=int, default=defaults["trials_per_cycle"])
     parser.add_argument("--eval-trials", type=int, default=defaults["eval_trials"])
-    parser.add_argument("--num-envs", type=int, default=defaults["num_envs"])
+    parser.add_argument(
+        "--num-envs", type=int, default=defaults["num_envs"], help="simulators side by side"
+    )
+    parser.add_argument(
+        "--address", default=None, help="Ray cluster for the simulators (default: local processes)"
+    )
     parser.add_argument(
         "--c-rel", type=float, default=defaults["c_rel"], help="weight offset c / mean q"
     )
@@ -71,6 +77,7 @@ def main() -> None:
         c_rel=args.c_rel,
         candidates=args.candidates,
         seed=args.seed,
+        address=args.address,
     )
     if not args.nbp_only:
         summary = experiment.run(out)

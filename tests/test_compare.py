@@ -17,7 +17,6 @@ from vistask.experiments.compare import (
     aggregate,
     compare,
     interactions_to,
-    iqm_ci,
     speedups,
 )
 from vistask.experiments.tasks import GridCells, task_for
@@ -26,14 +25,8 @@ from vistask.experiments.tasks import GridCells, task_for
 @pytest.fixture(scope="module")
 def quick_run(tmp_path_factory):
     out = tmp_path_factory.mktemp("compare")
-    # On a loaded 2-core machine, torch's OpenMP threads spin against other processes and
-    # the tiny SB3 networks run 10x slower; one thread keeps this test's time predictable.
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    try:
-        return out, compare(Comparison.quick(), out, progress=False)
-    finally:
-        torch.set_num_threads(threads)
+    # Two Ray workers, one thread each: the path a user's default run takes.
+    return out, compare(Comparison.quick(), out, progress=False, workers=2)
 
 
 @pytest.mark.slow
@@ -64,10 +57,19 @@ def test_quick_comparison_writes_every_output(quick_run):
     assert {r["method"] for r in rows} == set(DISCRETE_METHODS)
     table = (out / "table.md").read_text()
     assert all(f"| {name} |" in table for name in DISCRETE_METHODS)
-    assert (out / "curves.png").read_bytes()[:4] == b"\x89PNG"
+    for picture in ("curves", "aggregates", "profiles", "improvement"):
+        assert (out / f"{picture}.png").read_bytes()[:4] == b"\x89PNG"
+    # One line per independent run: RLVC learns afresh at each budget, the others once.
     runs = [json.loads(line) for line in (out / "runs.jsonl").read_text().splitlines()]
-    expected = [(m, s) for m in DISCRETE_METHODS for s in (0, 1)]
-    assert [(r["method"], r["seed"]) for r in runs] == expected
+    per_budget = {("rlvc", s, b) for s in (0, 1) for b in budgets}
+    assert {(r["method"], r["seed"], r["budgets"][0]) for r in runs if r["method"] == "rlvc"} == (
+        per_budget
+    )
+    assert len(runs) == 2 * 2 * len(budgets) + 4 * 2  # rlvc, rlvc_compounds; 4 others
+    assert summary["failed"] == []
+    stats = summary["statistics"]
+    assert set(stats["aggregates"]) == set(DISCRETE_METHODS)
+    assert set(stats["improvement"]) == {f"rlvc,{m}" for m in DISCRETE_METHODS if m != "rlvc"}
 
 
 @pytest.mark.slow
@@ -76,7 +78,8 @@ def test_tensorboard_holds_eval_return_against_interactions(quick_run):
 
     out, summary = quick_run
     acc = EventAccumulator(str(out / "tensorboard" / "rlvc-seed1")).Reload()
-    events = acc.Scalars("eval/return")
+    # One event file per budget (each a run of its own), written in the order they ended.
+    events = sorted(acc.Scalars("eval/return"), key=lambda e: e.step)
     assert [e.step for e in events] == summary["budgets"]
     run = next(r for r in summary["runs"] if r["method"] == "rlvc" and r["seed"] == 1)
     assert [e.value for e in events] == pytest.approx(run["returns"], rel=1e-5)
@@ -104,16 +107,52 @@ def test_true_state_cells_cover_the_grid_row_by_row():
     assert car.cells(corners, 10).tolist() == [0, 9, 90, 99, 55]
 
 
-def test_aggregation_iqm_ci_and_thresholds():
+def test_aggregation_thresholds():
     values = np.array([[0.0, 10.0], [1.0, 50.0], [2.0, 60.0], [3.0, 70.0], [100.0, 80.0]])
-    center, low, high = iqm_ci(values)
-    assert center == pytest.approx([2.0, 60.0])  # the outlier 100 is trimmed
-    assert np.all(low <= center) and np.all(center <= high) and np.any(low < high)
     assert interactions_to([1, 2, 3], np.array([0.0, 5.0, 9.0]), 5.0) == 2
     assert interactions_to([1, 2, 3], np.array([0.0, 5.0, 9.0]), 10.0) is None
     runs = [RunResult("a", s, [10, 20], list(v), 1.0, 2.0) for s, v in enumerate(values)]
     entry = aggregate(runs, [10, 20], oracle_return=60.0)["a"]
+    assert entry["curve"]["iqm"] == pytest.approx([2.0, 60.0])  # the outlier 100 is trimmed
     assert entry["interactions_to_90pct"] == 20 and entry["seconds"] == pytest.approx(10.0)
+
+
+def _quick_rlvc_and_random(**overrides) -> Comparison:
+    small = {"methods": ("rlvc", "random"), "budgets": (200, 400), "seeds": 2, "eval_starts": 5}
+    return Comparison.quick(**{**small, **overrides})
+
+
+def test_a_comparison_resumes_where_it_stopped(tmp_path):
+    config = _quick_rlvc_and_random()
+    first = compare(config, tmp_path, progress=False, workers=1)
+    lines = (tmp_path / "runs.jsonl").read_text().splitlines()
+    assert len(lines) == 2 * 2 + 2  # rlvc: 2 seeds x 2 budgets; random: 2 seeds
+    # Interrupted after all but two runs: resuming runs exactly those two, with the results
+    # of a run straight through.
+    (tmp_path / "runs.jsonl").write_text("\n".join(lines[:-2]) + "\n")
+    again = compare(config, tmp_path, progress=False, workers=1)
+    assert len((tmp_path / "runs.jsonl").read_text().splitlines()) == len(lines)
+    returns = lambda s: [(r["method"], r["seed"], r["returns"]) for r in s["runs"]]  # noqa: E731
+    assert returns(again) == returns(first)
+    with pytest.raises(ValueError, match=r"other settings \(seeds\)"):
+        compare(_quick_rlvc_and_random(seeds=3), tmp_path, progress=False, workers=1)
+
+
+def test_a_failed_run_is_reported_and_the_others_finish(tmp_path, monkeypatch):
+    import vistask.experiments.compare as comparison
+
+    def broken(seed, *args):
+        raise FloatingPointError(f"seed {seed} diverged")
+
+    monkeypatch.setattr(comparison, "run_random", broken)
+    summary = compare(_quick_rlvc_and_random(), tmp_path, progress=False, workers=1)
+    assert [f["method"] for f in summary["failed"]] == ["random", "random"]
+    assert "FloatingPointError: seed 0 diverged" in summary["failed"][0]["error"]
+    assert set(summary["methods"]) == {"rlvc"}
+    # Fixed, the same command runs only the failed runs.
+    monkeypatch.undo()
+    summary = compare(_quick_rlvc_and_random(), tmp_path, progress=False, workers=1)
+    assert summary["failed"] == [] and set(summary["methods"]) == {"rlvc", "random"}
 
 
 def test_config_rejects_bad_input():

@@ -8,6 +8,7 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 
 import numpy as np
 import pytest
+import torch
 
 pytest.importorskip("robosuite")
 
@@ -104,3 +105,24 @@ def test_parallel_trials_in_processes() -> None:
         assert list(info["reason"]) == ["success", "missed"]
     finally:
         runner.close()
+
+
+@pytest.mark.slow
+def test_ray_actors_run_the_trials_of_local_processes() -> None:
+    from vistask.envs.grasp_trial import RayGraspTrials
+    from vistask.grasp import demonstration_density, run_trials, scripted_teacher_grasps
+
+    results = []
+    for make in (lambda: RayGraspTrials("cube", num_envs=2), lambda: VectorGraspTrials("cube", 1)):
+        runner = make()
+        try:
+            bounds = torch.as_tensor(runner.object_bounds, dtype=torch.float32)
+            generator = torch.Generator().manual_seed(0)
+            density = demonstration_density(scripted_teacher_grasps(bounds), generator=generator)
+            results.append(run_trials(density, runner, 5, range(5), runner.workspace, generator))
+            assert len(runner.last_info["reason"]) == runner.num_envs
+        finally:
+            runner.close()
+    (grasps_ray, success_ray, _), (grasps_proc, success_proc, _) = results
+    torch.testing.assert_close(grasps_ray, grasps_proc)
+    assert torch.equal(success_ray, success_proc) and len(success_ray) == 5

@@ -264,3 +264,40 @@ def test_pooled_cycles_are_weighted_by_the_mixture_of_their_proposals() -> None:
     )
     with pytest.raises(ValueError, match="proposals"):
         mixture_proposal(trials, [broad])
+
+
+class _SeededRunner:
+    """Each trial's object pose follows its own placement seed, as in the simulator."""
+
+    def __init__(self, num_envs: int, target: torch.Tensor) -> None:
+        self.num_envs, self.target = num_envs, target
+
+    def reset(self, seeds) -> torch.Tensor:
+        assert len(seeds) == self.num_envs
+        t = torch.stack([0.1 * torch.rand(3, generator=_gen(int(s))) for s in seeds])
+        self.poses = make_poses(t, identity_poses(len(seeds))[:, 3:])
+        return self.poses
+
+    def execute(self, grasps: torch.Tensor):
+        from vistask.se3 import relative, translation_distance
+
+        local = relative(self.poses, grasps)
+        return translation_distance(local, self.target.expand_as(local)) < 0.03, {}
+
+
+def test_trials_do_not_depend_on_how_many_simulators_run_them() -> None:
+    from vistask.grasp import run_trials
+
+    target = _pose([0.0, 0.0, 0.02], [math.pi, 0.0, 0.0])
+    density = demonstration_density(target[None], n_per_demo=40, noise_t=0.03, generator=_gen(1))
+    results = [
+        run_trials(density, _SeededRunner(b, target), 10, range(50, 60), None, _gen(5))
+        for b in (1, 3, 4)
+    ]
+    for grasps, success, reach in results[1:]:
+        assert len(success) == 10
+        torch.testing.assert_close(grasps, results[0][0])
+        assert torch.equal(success, results[0][1]) and torch.equal(reach, results[0][2])
+    assert 0 < int(results[0][1].sum()) < 10  # the outcomes carry information
+    with pytest.raises(ValueError, match="need 10 placement seeds"):
+        run_trials(density, _SeededRunner(2, target), 10, range(9), None, _gen(5))

@@ -61,3 +61,28 @@ def test_bad_bench_configs_are_clear_errors() -> None:
         PoseBenchmark(methods=("icp",))
     with pytest.raises(ValueError, match="n_scenes must be >= 1, got 0"):
         PoseBenchmark(n_scenes=0)
+
+
+@pytest.mark.slow
+def test_scenes_spread_over_ray_workers_give_the_records_of_one_process(tmp_path) -> None:
+    import os
+
+    import torch
+
+    os.environ.setdefault("MUJOCO_GL", "egl")
+    bench = PoseBenchmark(objects=("box",), n_scenes=2, conditions=("clean",), image_size=96)
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)  # as each Ray worker runs
+    try:
+        alone = bench.run(tmp_path / "alone", log=None, workers=1, pictures=1)
+    finally:
+        torch.set_num_threads(threads)
+    spread = bench.run(tmp_path / "spread", log=None, workers=2, pictures=1)
+
+    def key(summary):
+        return [(r["method"], r["seed"], r["pose"]) for r in summary["records"]]
+
+    assert key(spread) == key(alone) and len(alone["records"]) == 2 * 2
+    assert spread["failed"] == []
+    pictures = sorted(p.name for p in (tmp_path / "spread" / "pictures").glob("*.png"))
+    assert pictures == ["box_clean_1000_nbp.png", "box_clean_1000_open3d.png"]

@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
+from vistask.experiments import statistics
 from vistask.experiments.train_rljc import train_rljc
 from vistask.runs import run_dir, write_summary
 
@@ -53,6 +54,7 @@ def bench_rljc(
         "rljc_beats_rlvc": int((table["rljc_return"] > table["rlvc_discrete_return"]).sum()),
         "seeds": seeds,
         "mean": {key: float(values.mean()) for key, values in table.items()},
+        "iqm": statistics.iqm_intervals(table),  # [iqm, low, high] per column
         "min_return_ratio": float(table["return_ratio"].min()),
         "max_seconds": float(table["seconds"].max()),
     }

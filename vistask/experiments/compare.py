@@ -15,27 +15,31 @@ confidence intervals.
 from __future__ import annotations
 
 import csv
+import functools
 import json
+import tempfile
 import time
 from collections.abc import Callable, Sequence
+from contextlib import nullcontext
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
-from scipy import stats
 
 from vistask.agents import RLJCAgent, RLVCAgent, TabularQAgent
 from vistask.checks import check_at_least
 from vistask.envs.maze_oracle import Policy
+from vistask.experiments import statistics
 from vistask.experiments.tasks import GridCells, Task, task_for
+from vistask.parallel import Outcome, in_process, map_runs, ray_session
 from vistask.rlvc import random_policy
 from vistask.runs import print_table, run_dir, tensorboard, write_summary
 
 DISCRETE_METHODS = ("rlvc", "rlvc_compounds", "dqn", "ppo", "tabular", "random")
 CONTINUOUS_METHODS = ("rljc", "sac", "ppo", "random")
 METHODS = tuple(dict.fromkeys(DISCRETE_METHODS + CONTINUOUS_METHODS))
-DEFAULT_BUDGETS = (1_000, 2_000, 5_000, 10_000, 20_000, 50_000, 100_000)
+DEFAULT_BUDGETS = (1_000, 2_000, 5_000, 10_000, 20_000, 50_000, 100_000, 200_000, 300_000)
 QUICK_BUDGETS = (300, 1_000)
 THRESHOLDS = (0.9, 0.75)  # fractions of the oracle's return; 0.9 is the issue's target
 
@@ -60,7 +64,9 @@ class Comparison:
             cells as RLVC's classes at the largest budget, the paper's "equivalent number of
             states"; RLVC then runs first).
         dqn_kwargs, ppo_kwargs, sac_kwargs: extra SB3 constructor arguments (override the
-            defaults).
+            defaults, which are rl-zoo3's tuned settings for Atari images where it has them:
+            see ``sb3_kwargs``).
+        ppo_envs: environments PPO collects from side by side (rl-zoo3's Atari setting: 8).
         device: torch device of the SB3 networks.
     """
 
@@ -77,6 +83,7 @@ class Comparison:
         dqn_kwargs: dict | None = None,
         ppo_kwargs: dict | None = None,
         sac_kwargs: dict | None = None,
+        ppo_envs: int = 8,
         device: str = "cpu",
     ) -> None:
         env = gym.make(env_id, **(env_kwargs or {}))
@@ -94,7 +101,7 @@ class Comparison:
             )
         if not budgets or min(budgets) < 1 or list(budgets) != sorted(set(budgets)):
             raise ValueError(f"budgets must be strictly increasing positive ints, got {budgets}")
-        check_at_least(1, seeds=seeds, eval_starts=eval_starts)
+        check_at_least(1, seeds=seeds, eval_starts=eval_starts, ppo_envs=ppo_envs)
         if grid is not None:
             check_at_least(1, grid=grid)
         elif "tabular" in methods and not any(m.startswith("rlvc") for m in methods):
@@ -106,6 +113,7 @@ class Comparison:
         self.eval_starts, self.grid, self.device = eval_starts, grid, device
         self.dqn_kwargs, self.ppo_kwargs = dict(dqn_kwargs or {}), dict(ppo_kwargs or {})
         self.sac_kwargs = dict(sac_kwargs or {})
+        self.ppo_envs = ppo_envs
 
     def params(self) -> dict:
         """The constructor's arguments (written to ``summary.json``)."""
@@ -113,34 +121,65 @@ class Comparison:
 
     @classmethod
     def quick(cls, **overrides) -> Comparison:
-        """Tiny budgets for tests: two seeds, small SB3 buffers and rollouts, 256 words."""
+        """Tiny budgets for tests: two seeds, small SB3 buffers and rollouts."""
         small = {
             "budgets": QUICK_BUDGETS,
             "seeds": 2,
             "eval_starts": 20,
             "dqn_kwargs": {"learning_starts": 100, "buffer_size": 1_000, "train_freq": 8},
-            "ppo_kwargs": {"n_steps": 128, "batch_size": 64, "n_epochs": 2},
+            "ppo_kwargs": {"n_steps": 32, "batch_size": 64, "n_epochs": 2},
             "sac_kwargs": {"learning_starts": 100, "buffer_size": 1_000, "batch_size": 32},
         }
         return cls(**{**small, **overrides})
 
     def sb3_kwargs(self, method: str) -> dict:
-        """Constructor arguments of the SB3 baseline ``method`` ("dqn", "ppo" or "sac")."""
-        # Replay memory of 64x64x3 images: cap it (SB3's default 1M would need 12 GB).
-        replay = {
-            "buffer_size": min(50_000, max(self.budgets)),
-            "learning_starts": min(1_000, max(self.budgets) // 10),
-        }
+        """Constructor arguments of the SB3 baseline ``method`` ("dqn", "ppo" or "sac").
+
+        DQN and PPO take rl-zoo3's hyperparameters for Atari's images (its ``dqn.yml`` and
+        ``ppo.yml``), scaled where they assume 10 million steps: DQN starts learning after
+        a tenth of the largest budget instead of 100,000 steps. SAC has no Atari setting;
+        it gets SB3's defaults with a cheaper update schedule for the CPU.
+        """
+        largest = max(self.budgets)
         if method == "dqn":
-            return {**replay, "exploration_fraction": 0.2, **self.dqn_kwargs}
+            zoo = {
+                "buffer_size": min(100_000, largest),
+                "learning_rate": 1e-4,
+                "batch_size": 32,
+                "learning_starts": min(100_000, largest // 10),
+                "target_update_interval": 1_000,
+                "train_freq": 4,
+                "gradient_steps": 1,
+                "exploration_fraction": 0.1,
+                "exploration_final_eps": 0.01,
+            }
+            return {**zoo, **self.dqn_kwargs}
+        if method == "ppo":
+            zoo = {
+                "n_steps": 128,
+                "n_epochs": 4,
+                "batch_size": 256,
+                "learning_rate": _linear(2.5e-4),
+                "clip_range": _linear(0.1),
+                "vf_coef": 0.5,
+                "ent_coef": 0.01,
+            }
+            return {**zoo, **self.ppo_kwargs}
         if method == "sac":
             # SB3's default, a batch of 256 images every interaction, takes 137 ms a step on a
             # 2-core CPU (2.3 hours a seed at 60,000); a batch of 64 every 4 steps takes 12 ms.
-            cpu = {"batch_size": 64, "train_freq": 4}
-            return {**replay, **cpu, **self.sac_kwargs}
-        if method == "ppo":
-            return {"n_steps": 512, "batch_size": 64, **self.ppo_kwargs}
+            replay = {
+                "buffer_size": min(50_000, largest),
+                "learning_starts": min(1_000, largest // 10),
+            }
+            return {**replay, "batch_size": 64, "train_freq": 4, **self.sac_kwargs}
         raise ValueError(f"no SB3 baseline called {method!r}")
+
+
+def _linear(start: float) -> Callable[[float], float]:
+    """rl-zoo3's ``lin_<start>``: decays linearly to 0 over the run (SB3 passes the progress
+    remaining, 1 -> 0)."""
+    return lambda progress_remaining: progress_remaining * start
 
 
 # -- one run: (method, seed) -> returns at every budget -----------------------------------
@@ -173,7 +212,12 @@ def _model_policy(model) -> Policy:
 
 
 def run_visual(
-    config: Comparison, method: str, seed: int, evaluate: Evaluate, log: Log
+    config: Comparison,
+    method: str,
+    seed: int,
+    budgets: Sequence[int],
+    evaluate: Evaluate,
+    log: Log,
 ) -> tuple[list[float], float, list[int]]:
     """A fresh RLVCAgent ("rlvc", "rlvc_compounds") or RLJCAgent ("rljc") per budget: they
     learn from a fixed database of B interactions.
@@ -183,7 +227,7 @@ def run_visual(
     RLJC also return their number of classes at each budget.
     """
     returns, train, classes = [], 0.0, []
-    for budget in config.budgets:
+    for budget in budgets:
         env = gym.make(config.env_id, **config.env_kwargs)
         t0 = time.perf_counter()
         if method == "rljc":
@@ -199,14 +243,20 @@ def run_visual(
 
 
 def run_tabular(
-    config: Comparison, seed: int, evaluate: Evaluate, log: Log, task: Task, grid: int
+    config: Comparison,
+    seed: int,
+    budgets: Sequence[int],
+    evaluate: Evaluate,
+    log: Log,
+    task: Task,
+    grid: int,
 ) -> tuple[list[float], float]:
     """Q-learning on true-state grid cells, trained once and evaluated at every budget."""
     env = GridCells(gym.make(config.env_id, **config.env_kwargs), task, grid)
     agent = TabularQAgent(env, seed=seed)
     policy = lambda percepts, states: agent.predict(task.cells(states, grid))[0]  # noqa: E731
     returns, train = [], 0.0
-    for budget in config.budgets:
+    for budget in budgets:
         t0 = time.perf_counter()
         agent.learn(budget - agent.num_timesteps, reset_num_timesteps=False)
         train += time.perf_counter() - t0
@@ -216,25 +266,32 @@ def run_tabular(
 
 
 def run_random(
-    config: Comparison, seed: int, evaluate: Evaluate, log: Log, task: Task
+    seed: int, budgets: Sequence[int], evaluate: Evaluate, log: Log, task: Task
 ) -> tuple[list[float], float]:
     """Uniformly random actions: no learning, the same score at every budget up to noise."""
     returns = []
-    for budget in config.budgets:
+    for budget in budgets:
         returns.append(evaluate(_random_policy(seed + budget, task.env.action_space)))
         log(budget, returns[-1])
     return returns, 0.0
 
 
 def run_sb3(
-    config: Comparison, method: str, seed: int, evaluate: Evaluate, log: Log, tb_dir: Path
+    config: Comparison,
+    method: str,
+    seed: int,
+    budgets: Sequence[int],
+    evaluate: Evaluate,
+    log: Log,
+    tb_dir: Path,
 ) -> tuple[list[float], float]:
     """SB3 DQN, PPO or SAC with ``CnnPolicy`` on the raw percepts, one ``learn`` call whose
     callback evaluates the current policy when it passes each budget."""
     from stable_baselines3 import DQN, PPO, SAC
     from stable_baselines3.common.callbacks import BaseCallback
+    from stable_baselines3.common.env_util import make_vec_env
 
-    budgets, returns = list(config.budgets), []
+    budgets, returns = list(budgets), []
     eval_seconds = [0.0]
 
     class EvaluateAtBudgets(BaseCallback):
@@ -247,7 +304,12 @@ def run_sb3(
             return len(returns) < len(budgets)
 
     cls = {"dqn": DQN, "ppo": PPO, "sac": SAC}[method]
-    env = gym.make(config.env_id, **config.env_kwargs)
+    if method == "ppo":
+        env = make_vec_env(
+            config.env_id, n_envs=config.ppo_envs, seed=seed, env_kwargs=config.env_kwargs
+        )
+    else:
+        env = gym.make(config.env_id, **config.env_kwargs)
     model = cls(
         "CnnPolicy",
         env,
@@ -264,11 +326,43 @@ def run_sb3(
     return returns, time.perf_counter() - t0 - eval_seconds[0]
 
 
-def run_method(
-    config: Comparison, method: str, seed: int, task: Task, tb_root: Path, grid: int
-) -> RunResult:
-    """Train and evaluate ``method`` with ``seed`` (the tabular baseline on a ``grid`` per
-    dimension); logs ``eval/return`` against interactions to ``tb_root/<method>-seed<seed>``."""
+VISUAL_METHODS = ("rlvc", "rlvc_compounds", "rljc")  # a fresh agent per budget
+
+
+@dataclass(frozen=True)
+class RunSpec:
+    """One independent run: ``method`` with ``seed`` evaluated at ``budgets`` (one budget
+    for the visual learners, which learn afresh per budget; all budgets for the others,
+    which train once); the tabular baseline on a ``grid`` per dimension."""
+
+    method: str
+    seed: int
+    budgets: tuple[int, ...]
+    grid: int | None = None
+
+    @property
+    def key(self) -> tuple[str, int, tuple[int, ...]]:
+        return (self.method, self.seed, self.budgets)
+
+
+def run_specs(config: Comparison, methods: Sequence[str], grid: int | None) -> list[RunSpec]:
+    """The independent runs of ``methods``: per seed, one per budget for the visual
+    learners, one for all budgets otherwise. The longest come first (the deep baselines, then
+    the largest budgets), so that the runs finishing last are short ones."""
+    specs = []
+    for method in methods:
+        for seed in range(config.seed0, config.seed0 + config.seeds):
+            if method in VISUAL_METHODS:
+                specs += [RunSpec(method, seed, (b,)) for b in config.budgets]
+            else:
+                specs.append(RunSpec(method, seed, config.budgets, grid))
+    return sorted(specs, key=lambda s: (s.method not in ("dqn", "ppo", "sac"), -max(s.budgets)))
+
+
+def run_method(config: Comparison, spec: RunSpec, task: Task, tb_root: Path) -> RunResult:
+    """Train and evaluate one ``spec``; logs ``eval/return`` against interactions to
+    ``tb_root/<method>-seed<seed>``."""
+    method, seed, budgets = spec.method, spec.seed, spec.budgets
 
     def evaluate(policy: Policy) -> float:
         return task.evaluate(policy).mean
@@ -281,25 +375,81 @@ def run_method(
 
     t0, classes = time.perf_counter(), None
     if method in ("dqn", "ppo", "sac"):
-        returns, train = run_sb3(config, method, seed, evaluate, log, tb_root / f"seed{seed}")
-    elif method.startswith(("rlvc", "rljc")):
-        returns, train, classes = run_visual(config, method, seed, evaluate, log)
+        sb3_logs = tb_root / f"seed{seed}"
+        returns, train = run_sb3(config, method, seed, budgets, evaluate, log, sb3_logs)
+    elif method in VISUAL_METHODS:
+        returns, train, classes = run_visual(config, method, seed, budgets, evaluate, log)
     elif method == "tabular":
-        returns, train = run_tabular(config, seed, evaluate, log, task, grid)
+        returns, train = run_tabular(config, seed, budgets, evaluate, log, task, spec.grid)
     else:
-        returns, train = run_random(config, seed, evaluate, log, task)
+        returns, train = run_random(seed, budgets, evaluate, log, task)
     writer.close()
-    if len(returns) != len(config.budgets):
-        raise RuntimeError(f"{method} produced {len(returns)} of {len(config.budgets)} returns")
+    if len(returns) != len(budgets):
+        raise RuntimeError(f"{method} produced {len(returns)} of {len(budgets)} returns")
     seconds = time.perf_counter() - t0
-    return RunResult(method, seed, list(config.budgets), returns, train, seconds, classes)
+    return RunResult(method, seed, list(budgets), returns, train, seconds, classes)
+
+
+def _task(config: Comparison) -> Task | None:
+    """The comparison's task, built once per process (the oracle's solution takes a while)."""
+    return _cached_task(
+        config.env_id, json.dumps(config.env_kwargs, sort_keys=True), config.eval_starts
+    )
+
+
+@functools.lru_cache(maxsize=4)
+def _cached_task(env_id: str, env_kwargs: str, eval_starts: int) -> Task | None:
+    return task_for(env_id, json.loads(env_kwargs), eval_starts)
+
+
+def execute(job: tuple[Comparison, RunSpec]) -> tuple[RunResult, dict[str, bytes]]:
+    """One run wherever it executes (this process, a Ray worker, a cluster node): its result
+    and its TensorBoard files (path under ``tensorboard/`` -> bytes), which the caller
+    writes into the comparison's folder."""
+    config, spec = job
+    task = _task(config)
+    with tempfile.TemporaryDirectory() as tmp:
+        result = run_method(config, spec, task, Path(tmp))
+        files = {
+            str(f.relative_to(tmp)): f.read_bytes() for f in Path(tmp).rglob("*") if f.is_file()
+        }
+    return result, files
+
+
+def merge_runs(units: Sequence[RunResult], budgets: Sequence[int]) -> list[RunResult]:
+    """Per (method, seed), the runs of its budgets joined into one covering ``budgets``;
+    pairs with a budget missing (a run that failed) are left out."""
+    groups: dict[tuple[str, int], list[RunResult]] = {}
+    for r in units:
+        groups.setdefault((r.method, r.seed), []).append(r)
+    merged = []
+    for (method, seed), runs in groups.items():
+        by_budget = {}
+        for r in runs:
+            for j, b in enumerate(r.budgets):
+                by_budget[b] = (r.returns[j], None if r.classes is None else r.classes[j])
+        if set(by_budget) != set(budgets):
+            continue
+        classes = [by_budget[b][1] for b in budgets]
+        merged.append(
+            RunResult(
+                method,
+                seed,
+                list(budgets),
+                [by_budget[b][0] for b in budgets],
+                sum(r.train_seconds for r in runs),
+                sum(r.seconds for r in runs),
+                None if classes[0] is None else classes,
+            )
+        )
+    return merged
 
 
 def tabular_grid(results: list[RunResult]) -> int:
     """Cells per dimension giving the tabular baseline as many cells as RLVC's classes (the
     median over seeds at the largest budget; RLVC with compounds if it ran)."""
     runs = [r for r in results if r.method == "rlvc_compounds"] or [
-        r for r in results if r.method.startswith("rlvc")
+        r for r in results if r.method == "rlvc"
     ]
     if not runs:
         raise ValueError("grid=None matches RLVC's classes: include an rlvc method")
@@ -307,42 +457,6 @@ def tabular_grid(results: list[RunResult]) -> int:
 
 
 # -- aggregation --------------------------------------------------------------------------
-def iqm(values: np.ndarray, axis: int = 0) -> np.ndarray:
-    """Interquartile mean: the mean of the middle 50% along ``axis``."""
-    return stats.trim_mean(values, 0.25, axis=axis)
-
-
-def iqm_ci(
-    values: np.ndarray, confidence: float = 0.95, resamples: int = 2000, seed: int = 0
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """IQM over seeds and its percentile-bootstrap confidence interval, per budget.
-
-    Args:
-        values: (S, B) returns of S seeds at B budgets.
-
-    Returns:
-        (B,) IQM, (B,) lower and (B,) upper bounds (equal to the IQM with one seed, where
-        there is nothing to resample).
-    """
-    values = np.asarray(values, dtype=float)
-    if values.ndim != 2:
-        raise ValueError(f"values must be (seeds, budgets), got shape {values.shape}")
-    center = iqm(values)
-    if len(values) < 2 or np.all(values == values[0]):
-        return center, center.copy(), center.copy()
-    res = stats.bootstrap(
-        (values,),
-        iqm,
-        axis=0,
-        confidence_level=confidence,
-        n_resamples=resamples,
-        method="percentile",
-        rng=np.random.default_rng(seed),
-    )
-    low, high = res.confidence_interval
-    return center, np.minimum(low, center), np.maximum(high, center)
-
-
 def interactions_to(budgets: Sequence[int], curve: np.ndarray, target: float) -> int | None:
     """The first budget at which ``curve`` reaches ``target`` (None if it never does)."""
     hits = np.flatnonzero(np.asarray(curve) >= target)
@@ -352,14 +466,17 @@ def interactions_to(budgets: Sequence[int], curve: np.ndarray, target: float) ->
 def aggregate(
     results: list[RunResult], budgets: Sequence[int], oracle_return: float
 ) -> dict[str, dict]:
-    """Per method: IQM curve with CI, interactions to each threshold (from the IQM, and the
-    interval given by the CI's upper and lower curves), final return and seconds."""
+    """Per method: IQM curve with its stratified-bootstrap CI (rliable), interactions to each
+    threshold (from the IQM, and the interval given by the CI's upper and lower curves),
+    final return and seconds."""
     methods = list(dict.fromkeys(r.method for r in results))
+    scores = {m: np.array([r.returns for r in results if r.method == m]) for m in methods}
+    curves = statistics.iqm_curves(scores)  # (S, B) -> IQM and CI per budget
     out = {}
     for method in methods:
         runs = [r for r in results if r.method == method]
-        values = np.array([r.returns for r in runs])  # (S, B)
-        center, low, high = iqm_ci(values)
+        values = scores[method]
+        center, low, high = curves[method]
         entry = {
             "curve": {"iqm": center, "ci_low": low, "ci_high": high, "per_seed": values},
             "final_return": float(center[-1]),
@@ -458,45 +575,101 @@ def write_csv(path: Path, methods: dict[str, dict], budgets: Sequence[int]) -> N
                 writer.writerow([*row, per_seed.mean(), *per_seed])
 
 
-def plot_curves(path: Path, methods: dict[str, dict], budgets: Sequence[int], oracle: float):
-    """IQM return against interactions (log x), 95% CI bands, oracle and 90% lines."""
-    import matplotlib
+PROFILE_TAUS = np.linspace(0.0, 1.2, 25)  # thresholds on return / oracle
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(figsize=(7, 4.5))
-    for name, m in methods.items():
-        c = m["curve"]
-        (line,) = ax.plot(budgets, c["iqm"], marker="o", label=name)
-        ax.fill_between(budgets, c["ci_low"], c["ci_high"], color=line.get_color(), alpha=0.2)
-    ax.axhline(oracle, color="k", linestyle="--", label="oracle (true state)")
-    ax.axhline(0.9 * oracle, color="k", linestyle=":", label="90% of oracle")
-    ax.set_xscale("log")
-    ax.set_xlabel("environment interactions")
-    ax.set_ylabel("mean discounted return (IQM over seeds)")
-    ax.legend(fontsize="small")
-    ax.grid(alpha=0.3)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+def final_statistics(methods: dict[str, dict], learner: str | None) -> dict[str, object]:
+    """rliable's view of the final returns as fractions of the oracle's: median, IQM, mean
+    and optimality gap with intervals, performance profiles, and the probability that a
+    ``learner`` run beats a run of each other method."""
+    scores = {
+        name: m["curve"]["per_seed"][:, -1] / m["oracle_return"] for name, m in methods.items()
+    }
+    profiles = statistics.performance_profiles(scores, PROFILE_TAUS)
+    pairs = [(learner, other) for other in methods if other != learner] if learner else []
+    return {
+        "aggregates": statistics.aggregate_metrics(scores),
+        "profiles": {
+            "taus": PROFILE_TAUS,
+            **{
+                name: {"fraction": p[0], "ci_low": p[1], "ci_high": p[2]}
+                for name, p in profiles.items()
+            },
+        },
+        "improvement": statistics.improvement_probabilities(scores, pairs),
+    }
+
+
+def write_pictures(out: Path, methods: dict[str, dict], stats: dict, budgets, oracle: float):
+    """rliable's plots: ``curves.png`` (IQM return against interactions, log x, with 95%
+    intervals), ``aggregates.png``, ``profiles.png`` and ``improvement.png``."""
+    curves = {
+        name: (np.array(c["iqm"]), np.array(c["ci_low"]), np.array(c["ci_high"]))
+        for name, c in ((n, m["curve"]) for n, m in methods.items())
+    }
+    statistics.plot_sample_efficiency(out / "curves.png", budgets, curves, oracle)
+    statistics.plot_aggregates(out / "aggregates.png", stats["aggregates"])
+    profiles = {
+        name: (np.array(p["fraction"]), np.array(p["ci_low"]), np.array(p["ci_high"]))
+        for name, p in stats["profiles"].items()
+        if name != "taus"
+    }
+    statistics.plot_profiles(out / "profiles.png", profiles, PROFILE_TAUS)
+    if stats["improvement"]:
+        statistics.plot_improvement(out / "improvement.png", stats["improvement"])
 
 
 # -- the whole comparison -----------------------------------------------------------------
+def load_finished(out: Path, config: Comparison) -> list[RunResult]:
+    """The runs already in ``out/runs.jsonl`` (none for a new folder). ``out`` must hold a
+    comparison with the same settings (``comparison.json``), so that resuming never mixes two
+    comparisons."""
+    params = json.loads(json.dumps(config.params()))
+    saved = out / "comparison.json"
+    if saved.exists():
+        before = json.loads(saved.read_text())
+        if before != params:
+            changed = sorted(k for k in params if before.get(k) != params[k])
+            raise ValueError(
+                f"{out} holds a comparison with other settings ({', '.join(changed)}); "
+                "resume it with the same settings or pick another output folder"
+            )
+    else:
+        saved.write_text(json.dumps(params, indent=2) + "\n")
+    path = out / "runs.jsonl"
+    if not path.exists():
+        return []
+    return [RunResult(**json.loads(line)) for line in path.read_text().splitlines() if line]
+
+
 def compare(
-    config: Comparison | None = None, out: str | Path | None = None, progress: bool = True
+    config: Comparison | None = None,
+    out: str | Path | None = None,
+    progress: bool = True,
+    workers: int | None = None,
+    address: str | None = None,
 ) -> dict:
     """Run every method with every seed, aggregate and write all outputs.
 
-    Writes under ``out`` (default ``runs/compare-<time>/``): ``curves.csv``, ``table.md``,
-    ``curves.png``, ``summary.json``, ``runs.jsonl`` (each run as it ends) and ``tensorboard/``
-    (``<method>-seed<k>`` with ``eval/return`` against interactions for every method,
-    ``seed<k>/<dqn|ppo>-sb3_1`` with SB3's own training logs).
+    The runs are independent (``RunSpec``) and go to ``vistask.parallel.map_runs``: Ray tasks
+    on this machine's cores by default, on a Ray cluster with ``address``, one after another
+    in this process with ``workers=1``. Each finished run is appended to ``runs.jsonl`` at
+    once; calling ``compare`` again on the same ``out`` with the same settings runs only what
+    is missing (runs that failed or never ran). A run that fails is reported with its error
+    (``summary["failed"]``) and the others go on.
+
+    Writes under ``out`` (default ``runs/compare-<time>/``): ``comparison.json`` (settings),
+    ``runs.jsonl``, ``curves.csv``, ``table.md``, ``summary.json``, rliable's pictures
+    (``curves.png``, ``aggregates.png``, ``profiles.png``, ``improvement.png``) and
+    ``tensorboard/`` (``<method>-seed<k>`` with ``eval/return`` against interactions for
+    every method, ``seed<k>/<dqn|ppo|sac>-sb3_1`` with SB3's own training logs).
 
     Args:
         config: the comparison (default ``Comparison()``, the full run).
-        out: run directory.
+        out: run directory; an existing one with the same settings is resumed.
         progress: print one line per finished run.
+        workers: CPUs of the local Ray (default: all cores); 1 runs in this process.
+        address: a Ray cluster to run on (default: ``RAY_ADDRESS`` if set, else local).
 
     Returns:
         The summary written to ``summary.json``.
@@ -504,38 +677,78 @@ def compare(
     config = config or Comparison()
     start = time.perf_counter()
     out = run_dir("compare", out)
-    task = task_for(config.env_id, config.env_kwargs, config.eval_starts)
+    task = _task(config)
     if task is None:
         raise TypeError(
             f"the comparison scores policies against an oracle, and {config.env_id} has none: "
             "use vistask/VisualMaze-v0 or vistask/VisualMountainCar-v0"
         )
     oracle_return = task.oracle_return
-    methods = list(config.methods)
-    if config.grid is None and "tabular" in methods:  # its grid follows RLVC's classes
-        rlvc_first = sorted(methods, key=lambda m: not m.startswith("rlvc"))
-        methods = rlvc_first
+    units = load_finished(out, config)
+    finished = {(r.method, r.seed, tuple(r.budgets)) for r in units}
+    failed: list[dict] = []
 
-    results, grid = [], config.grid
-    for method in methods:
-        if method == "tabular" and grid is None:
-            grid = tabular_grid(results)
-        for k in range(config.seeds):
-            result = run_method(config, method, config.seed0 + k, task, out / "tensorboard", grid)
-            results.append(result)
-            with open(out / "runs.jsonl", "a") as runs:  # kept if a later run fails
-                runs.write(json.dumps(asdict(result)) + "\n")
+    def record(outcome: Outcome) -> None:
+        spec = outcome.item[1]
+        if not outcome.ok:
+            failed.append({**asdict(spec), "error": outcome.error})
             if progress:
-                curve = " ".join(f"{r:.1f}" for r in result.returns)
-                print(f"{method} seed {result.seed}: {curve} ({result.seconds:.0f} s)", flush=True)
+                print(
+                    f"{spec.method} seed {spec.seed} {list(spec.budgets)} FAILED: "
+                    f"{outcome.error.strip().splitlines()[-1]}",
+                    flush=True,
+                )
+            return
+        result, files = outcome.result
+        for name, data in files.items():
+            path = out / "tensorboard" / name
+            path.parent.mkdir(parents=True, exist_ok=True)
+            path.write_bytes(data)
+        with open(out / "runs.jsonl", "a") as runs:
+            runs.write(json.dumps(asdict(result)) + "\n")
+        units.append(result)
+        if progress:
+            curve = " ".join(f"{r:.1f}" for r in result.returns)
+            print(
+                f"{spec.method} seed {spec.seed} at {list(spec.budgets)}: {curve} "
+                f"({result.seconds:.0f} s)",
+                flush=True,
+            )
 
+    # The tabular grid sized by RLVC's classes needs RLVC's runs first.
+    phases = [list(config.methods)]
+    if config.grid is None and "tabular" in config.methods:
+        phases = [[m for m in config.methods if m != "tabular"], ["tabular"]]
+    grid = config.grid
+    session = nullcontext() if in_process(workers, address) else ray_session(workers, address)
+    with session:
+        for phase in phases:
+            if phase == ["tabular"] and grid is None:
+                rlvc_runs = [
+                    r for r in merge_runs(units, config.budgets) if r.method.startswith("rlvc")
+                ]
+                if not rlvc_runs:
+                    failed.append(
+                        {"method": "tabular", "error": "no RLVC run finished to size its grid"}
+                    )
+                    continue
+                grid = tabular_grid(rlvc_runs)
+            specs = [s for s in run_specs(config, phase, grid) if s.key not in finished]
+            map_runs(execute, [(config, s) for s in specs], workers, address, record)
+
+    order = {m: k for k, m in enumerate(config.methods)}
+    results = sorted(merge_runs(units, config.budgets), key=lambda r: (order[r.method], r.seed))
+    if not results:
+        raise RuntimeError("every run failed:\n" + "\n".join(f["error"] for f in failed))
     methods = aggregate(results, config.budgets, oracle_return)
     for m in methods.values():
         m["curve"]["budgets"] = list(config.budgets)
+    learner = next((m for m in ("rlvc", "rljc") if m in methods), None)
+    stats = final_statistics(methods, learner)
     write_csv(out / "curves.csv", methods, config.budgets)
     table = markdown_table(methods, oracle_return)
     (out / "table.md").write_text(table)
-    plot_curves(out / "curves.png", methods, config.budgets, oracle_return)
+    write_pictures(out, methods, stats, config.budgets, oracle_return)
 
     summary = {
         "env_id": config.env_id,
@@ -545,7 +758,9 @@ def compare(
         "tabular_grid": grid,
         "methods": methods,
         "ratios": speedups(methods, config.budgets),
+        "statistics": stats,
         "runs": [asdict(r) for r in results],
+        "failed": failed,
         "seconds": time.perf_counter() - start,
     }
     write_summary(out, summary)
@@ -557,5 +772,10 @@ def compare(
                 k: _fmt(v) if not isinstance(v, list) else str([_fmt(x) for x in v])
                 for k, v in summary["ratios"].items()
             }
+        )
+    if failed:
+        print(
+            f"{len(failed)} runs failed (errors in summary.json, 'failed'); the same command "
+            "runs them again and keeps the finished ones"
         )
     return summary

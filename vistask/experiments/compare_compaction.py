@@ -23,6 +23,7 @@ from PIL import Image
 import vistask.envs  # noqa: F401  (registers the environments)
 from vistask.agents import RLVCAgent
 from vistask.envs.place_navigation import draw_world, view_sheet
+from vistask.experiments import statistics
 from vistask.experiments.tasks import PlaceTask, Task, task_for
 from vistask.experiments.train_rlvc import agent_policy
 from vistask.runs import print_table, run_dir, write_summary
@@ -114,7 +115,8 @@ def compare_compaction(
 
     Both learn with ``RLVCAgent``'s defaults; the BDD agent also compacts when learning
     stops (and every ``compact_every`` stages if given) with ``tolerance``. Writes
-    ``summary.json`` (per method: the mean of each measure over seeds and the per-seed values),
+    ``summary.json`` (per method: the mean of each measure over seeds, its IQM with a 95%
+    interval, and the per-seed values),
     ``sawtooth.png`` and, for place navigation, ``world.png`` and ``views.png`` to ``out``.
 
     Args:
@@ -161,8 +163,10 @@ def compare_compaction(
         "seeds": list(seeds),
     }
     for method in METHODS:
-        means = {key: float(np.mean([r[key] for r in runs[method]])) for key in MEASURES}
-        summary[method] = {**means, "runs": runs[method]}
+        values = {key: [r[key] for r in runs[method]] for key in MEASURES}
+        means = {key: float(np.mean(v)) for key, v in values.items()}
+        iqm = statistics.iqm_intervals(values)  # [iqm, low, high] per measure
+        summary[method] = {**means, "iqm": iqm, "runs": runs[method]}
     summary["compaction_share_of_time"] = float(
         np.mean([r["compaction_seconds"] / r["seconds"] for r in runs["bdd"]])
     )

@@ -13,12 +13,12 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import torch
 
 from vistask.objects import NBP, ObjectModel, Open3DRegistration
+from vistask.parallel import Outcome, map_runs
 from vistask.runs import write_summary
 from vistask.vision import Patches, PatchExtractor, pose_error, view_patches
 
@@ -244,6 +244,37 @@ class PoseBenchmark:
             "true_pose": scene.target_pose.tolist(),
         }
 
+    def scene_records(
+        self, model: ObjectModel, kind: str, condition: str, index: int, picture: bool
+    ) -> tuple[list[dict], dict[str, bytes]]:
+        """Make test scene ``index`` of ``kind`` under ``condition`` and estimate the target's
+        pose with every method.
+
+        Returns:
+            one record per method, and PNG pictures of the estimates (name -> bytes) if
+            ``picture``.
+        """
+        seed = self.scene_seed(kind, condition, index)
+        scene, visible = self.make_test_scene(seed, kind, CONDITIONS[condition], index)
+        start = time.perf_counter()
+        patches = scene_patches(scene, self.extractor)
+        patch_seconds = time.perf_counter() - start
+        records, pictures = [], {}
+        for method in self.methods:
+            record = self._run_method(method, model, patches, scene, seed)
+            record["seconds"] += patch_seconds
+            record["condition"], record["visible_fraction"] = condition, visible
+            records.append(record)
+            if picture and record["pose"] is not None:
+                name = f"{kind}_{condition}_{seed}_{method}"
+                pictures[name] = picture_png(scene, model, torch.tensor(record["pose"]))
+        return records, pictures
+
+    def scene_seed(self, kind: str, condition: str, index: int) -> int:
+        """The seed of test scene ``index`` of ``kind`` under ``condition``."""
+        o, c = self.objects.index(kind), self.conditions.index(condition)
+        return self.seed + 10_000 * o + 1_000 * c + index
+
     def run(
         self,
         out: Path | None = None,
@@ -251,8 +282,16 @@ class PoseBenchmark:
         pictures: int = 0,
         log: Callable[[str], None] | None = print,
         models: dict[str, ObjectModel] | None = None,
+        workers: int | None = 1,
+        address: str | None = None,
     ) -> dict:
         """Learn each object's model, estimate its pose in every test scene with every method.
+
+        The scenes are independent runs (``vistask.parallel.map_runs``): one after another in
+        this process by default, or side by side on ``workers`` local Ray workers or a Ray
+        cluster at ``address``, with the same records (each Ray worker runs one thread, as
+        ``scripts/bench_pose.py`` does by default). A scene that fails is reported under
+        ``failed`` and the others go on.
 
         Args:
             out: run directory (pictures go to ``out/pictures``); None writes nothing.
@@ -261,53 +300,72 @@ class PoseBenchmark:
                 estimate drawn over the first camera's image.
             log: progress printer, or None.
             models: already learned models by object kind (the others are learned here).
+            workers: scenes side by side (1: in this process; None: all cores).
+            address: Ray cluster to run the scenes on (default ``RAY_ADDRESS``).
 
         Returns:
-            summary dict (see ``summarize``) with the per-scene ``records`` and the settings
-            (``config``).
+            summary dict (see ``summarize``) with the per-scene ``records``, the scenes that
+            failed (``failed``) and the settings (``config``).
         """
-        records: list[dict] = []
-        model_params: dict[str, dict[str, Any]] = {}
-        step = 0
-        for o, kind in enumerate(self.objects):
+        learned: dict[str, ObjectModel] = {}
+        for kind in self.objects:
             start = time.perf_counter()
-            model = (models or {}).get(kind) or self.learn_model(kind)
-            model_params[kind] = model.params
+            model = learned[kind] = (models or {}).get(kind) or self.learn_model(kind)
             if log:
                 log(
                     f"{kind}: model of {len(model.patches)} patches, {model.n_classes} classes, "
                     f"depth {model.depth()}, learned in {time.perf_counter() - start:.1f} s"
                 )
-            for c, cond in enumerate(self.conditions):
-                for i in range(self.n_scenes):
-                    seed = self.seed + 10_000 * o + 1_000 * c + i
-                    scene, visible = self.make_test_scene(seed, kind, CONDITIONS[cond], i)
-                    start = time.perf_counter()
-                    patches = scene_patches(scene, self.extractor)
-                    patch_seconds = time.perf_counter() - start
-                    for method in self.methods:
-                        record = self._run_method(method, model, patches, scene, seed)
-                        record["seconds"] += patch_seconds
-                        record["condition"], record["visible_fraction"] = cond, visible
-                        records.append(record)
-                        t_err, r_err = record["translation_error_m"], record["rotation_error_deg"]
-                        ok, seconds, pose = record["success"], record["seconds"], record["pose"]
-                        if writer is not None:
-                            tag = f"{method}/{cond}/{kind}"
-                            writer.add_scalar(f"{tag}/translation_error_m", min(t_err, 1.0), step)
-                            writer.add_scalar(f"{tag}/rotation_error_deg", r_err, step)
-                            writer.add_scalar(f"{tag}/seconds", seconds, step)
-                            writer.add_scalar(f"{tag}/success", float(ok), step)
-                        if out is not None and i < pictures and pose is not None:
-                            name = f"{kind}_{cond}_{seed}_{method}"
-                            _save_picture(out, scene, model, torch.tensor(pose), name)
-                        if log:
-                            log(
-                                f"  {method:6s} {cond:7s} {kind:7s} seed {seed}: "
-                                f"{t_err * 100:6.2f} cm {r_err:6.1f} deg {seconds:5.2f} s"
-                                f"{'' if ok else '  FAIL'}"
-                            )
-                    step += 1
+        jobs = [
+            (self, learned[kind], kind, cond, i, i < pictures)
+            for kind in self.objects
+            for cond in self.conditions
+            for i in range(self.n_scenes)
+        ]
+
+        def report(outcome: Outcome) -> None:
+            _, _, kind, cond, i, _ = outcome.item
+            if not log:
+                return
+            if not outcome.ok:
+                log(f"  {cond:7s} {kind:7s} scene {i}: FAILED {outcome.error.splitlines()[-1]}")
+                return
+            for r in outcome.result[0]:
+                t_err, r_err = r["translation_error_m"], r["rotation_error_deg"]
+                log(
+                    f"  {r['method']:6s} {cond:7s} {kind:7s} seed {r['seed']}: "
+                    f"{t_err * 100:6.2f} cm {r_err:6.1f} deg {r['seconds']:5.2f} s"
+                    f"{'' if r['success'] else '  FAIL'}"
+                )
+
+        outcomes = map_runs(_scene_records, jobs, workers, address, report)
+        order = {id(job): k for k, job in enumerate(jobs)}
+        outcomes.sort(key=lambda o: order[id(o.item)])
+        records, failed = [], []
+        for step, outcome in enumerate(outcomes):
+            _, _, kind, cond, i, _ = outcome.item
+            if not outcome.ok:
+                failed.append(
+                    {"object": kind, "condition": cond, "scene": i, "error": outcome.error}
+                )
+                continue
+            scene_records, scene_pictures = outcome.result
+            records += scene_records
+            if writer is not None:
+                for r in scene_records:
+                    tag = f"{r['method']}/{cond}/{kind}"
+                    writer.add_scalar(
+                        f"{tag}/translation_error_m", min(r["translation_error_m"], 1.0), step
+                    )
+                    writer.add_scalar(f"{tag}/rotation_error_deg", r["rotation_error_deg"], step)
+                    writer.add_scalar(f"{tag}/seconds", r["seconds"], step)
+                    writer.add_scalar(f"{tag}/success", float(r["success"]), step)
+            if out is not None:
+                for name, png in scene_pictures.items():
+                    (out / "pictures").mkdir(parents=True, exist_ok=True)
+                    (out / "pictures" / f"{name}.png").write_bytes(png)
+        if not records:
+            raise RuntimeError("every scene failed:\n" + "\n".join(f["error"] for f in failed))
         summary = summarize(records)
         summary["config"] = {
             "objects": self.objects,
@@ -320,23 +378,31 @@ class PoseBenchmark:
             "voxel": self.voxel,
             "seed": self.seed,
             "device": self.device,
-            "model": model_params,
+            "model": {kind: model.params for kind, model in learned.items()},
             "nbp": vars(self.nbp),
             "registration": vars(self.registration),
             "patches": vars(self.extractor),
         }
         summary["records"] = records
+        summary["failed"] = failed
         return summary
 
 
-def _save_picture(out: Path, scene, model: ObjectModel, pose: torch.Tensor, name: str) -> None:
+def _scene_records(job: tuple) -> tuple[list[dict], dict[str, bytes]]:
+    """``PoseBenchmark.scene_records`` as a function of one picklable argument."""
+    bench, model, kind, condition, index, picture = job
+    return bench.scene_records(model, kind, condition, index, picture)
+
+
+def picture_png(scene, model: ObjectModel, pose: torch.Tensor) -> bytes:
+    """PNG bytes of ``pose``'s model points drawn over the scene's first camera image."""
     import cv2
 
-    folder = out / "pictures"
-    folder.mkdir(parents=True, exist_ok=True)
     view = next(iter(scene.views.values()))
-    picture = draw_estimate(view, model, pose)
-    cv2.imwrite(str(folder / f"{name}.png"), picture[:, :, ::-1])
+    ok, png = cv2.imencode(".png", draw_estimate(view, model, pose)[:, :, ::-1])
+    if not ok:
+        raise RuntimeError("OpenCV could not encode the picture as PNG")
+    return png.tobytes()
 
 
 def _stats(rows: list[dict]) -> dict:

@@ -305,8 +305,7 @@ class GraspLearner:
         """Execute one cycle of ``n_trials`` grasps drawn from the current proposal.
 
         Args:
-            runner: executes grasps (``n_trials`` is rounded up to a multiple of its
-                ``num_envs``).
+            runner: executes grasps, ``num_envs`` at a time.
             n_trials: trials in this cycle.
             seeds: at least as many object-placement seeds as trials.
             generator: random generator for drawing grasps.
@@ -393,6 +392,14 @@ def _untuple(v: Any) -> Any:
     return tuple(v) if isinstance(v, list) else v
 
 
+def trial_seeds(generator: torch.Generator | None, n: int) -> list[int]:
+    """One seed per trial, all derived from a single draw of ``generator``, so that the k-th
+    trial's grasp is the same however the trials are batched over simulators."""
+    device = generator.device if generator is not None else "cpu"
+    base = int(torch.randint(2**62, (1,), generator=generator, device=device))
+    return [base + k for k in range(n)]
+
+
 def run_trials(
     density: SE3KDE,
     runner: TrialRunner,
@@ -406,11 +413,16 @@ def run_trials(
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """Execute grasps drawn from an object-frame density on fresh object placements.
 
+    Trial k places the objects with ``seeds[k]`` and draws its grasp with its own generator
+    (``trial_seeds``), so the results for a given ``generator`` state do not depend on the
+    runner's ``num_envs``. The last round is padded with repeats of its last placement when
+    ``n_trials`` is not a multiple of ``num_envs``; the extra trials are not returned.
+
     Args:
         density: object-frame grasp density.
-        runner: executes grasps (``n_trials`` is rounded up to a multiple of ``num_envs``).
+        runner: executes grasps, ``num_envs`` at a time.
         n_trials: number of trials.
-        seeds: placement seeds, at least the rounded-up number of trials.
+        seeds: placement seeds, at least ``n_trials``.
         workspace: reachability filter (unreachable draws are redrawn; if none is found
             the last draw is executed and normally fails).
         generator: random generator for drawing grasps.
@@ -423,24 +435,36 @@ def run_trials(
         (N,) bool successes, (N,) bool reachable flags.
     """
     B = runner.num_envs
-    rounds = math.ceil(n_trials / B)
-    if len(seeds) < rounds * B:
-        raise ValueError(f"need {rounds * B} seeds for {n_trials} trials, got {len(seeds)}")
+    if len(seeds) < n_trials:
+        raise ValueError(f"need {n_trials} placement seeds for {n_trials} trials, got {len(seeds)}")
+    draw_seeds = trial_seeds(generator, math.ceil(n_trials / B) * B)
+    device = density.points.device
     grasps, success, reach = [], [], []
-    for r in range(rounds):
-        truth = runner.reset(list(seeds[r * B : (r + 1) * B])).to(density.points)
+    for start in range(0, n_trials, B):
+        n = min(B, n_trials - start)
+        batch = list(seeds[start : start + n])
+        batch += batch[-1:] * (B - n)
+        truth = runner.reset(batch).to(density.points)
         placed = truth if pose_fn is None else pose_fn(truth).to(truth)
-        local, world, ok = draw_reachable(
-            density, placed, workspace, generator, candidates=candidates
-        )
+        draws = [
+            draw_reachable(
+                density,
+                placed[j : j + 1],
+                workspace,
+                torch.Generator(device).manual_seed(draw_seeds[start + j]),
+                candidates=candidates,
+            )
+            for j in range(B)
+        ]
+        local, world, ok = (torch.cat(parts) for parts in zip(*draws, strict=True))
         outcome, _ = runner.execute(world)
         # Recorded relative to the pose the robot believed (as a robot would); with
         # ground-truth poses this is the grasp relative to the object itself.
-        grasps.append(local)
-        success.append(outcome.bool().cpu())
-        reach.append(ok.cpu())
+        grasps.append(local[:n])
+        success.append(outcome.bool().cpu()[:n])
+        reach.append(ok.cpu()[:n])
         if progress is not None:
-            progress(B)
+            progress(n)
     return torch.cat(grasps), torch.cat(success), torch.cat(reach)
 
 

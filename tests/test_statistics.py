@@ -1,0 +1,59 @@
+"""rliable's statistics as the comparisons use them, checked against direct computation."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from vistask.experiments import statistics
+from vistask.parallel import map_runs
+
+
+def _iqm(column: np.ndarray) -> float:
+    """The mean of the middle half of sorted values (sizes divisible by 4)."""
+    x = np.sort(column)
+    n = len(x) // 4
+    return float(x[n : len(x) - n].mean())
+
+
+def test_iqm_curves_match_the_middle_half_and_cover_it():
+    rng = np.random.default_rng(0)
+    scores = {"a": rng.normal(size=(8, 3)), "b": rng.normal(5.0, 1.0, size=(8, 3))}
+    curves = statistics.iqm_curves(scores, seed=1)
+    for name, runs in scores.items():
+        center, low, high = curves[name]
+        assert center == pytest.approx([_iqm(runs[:, j]) for j in range(3)])
+        assert np.all(low <= center) and np.all(center <= high) and np.all(low < high)
+    again = statistics.iqm_curves(scores, seed=1)
+    assert all(np.array_equal(again[k][1], curves[k][1]) for k in scores)
+    state = np.random.get_state()[1].copy()
+    statistics.iqm_curves(scores, seed=2)
+    assert np.array_equal(np.random.get_state()[1], state)  # the global generator is restored
+
+
+def test_one_seed_has_no_interval():
+    center, low, high = statistics.iqm_curves({"a": np.array([[1.0, 2.0]])})["a"]
+    assert np.array_equal(center, low) and np.array_equal(center, high)
+
+
+def test_profiles_and_improvement_count_runs():
+    scores = {"x": np.array([0.1, 0.5, 0.9, 1.0]), "y": np.array([0.0, 0.2, 0.3, 0.4])}
+    profiles = statistics.performance_profiles(scores, [0.0, 0.45, 0.95])
+    assert profiles["x"][0] == pytest.approx([1.0, 0.75, 0.25])
+    assert profiles["y"][0] == pytest.approx([0.75, 0.0, 0.0])
+    better = sum(a > b for a in scores["x"] for b in scores["y"]) / 16
+    p, low, high = statistics.improvement_probabilities(scores, [("x", "y")])["x,y"]
+    assert p == pytest.approx(better) and low <= p <= high
+    metrics = statistics.aggregate_metrics(scores)["x"]
+    assert metrics["Mean"][0] == pytest.approx(0.625)
+    assert metrics["Optimality gap"][0] == pytest.approx(1 - 0.625)
+
+
+def test_map_runs_reports_failures_and_finishes_the_rest_in_process_and_on_ray():
+    for workers in (1, 2):
+        outcomes = map_runs(json.loads, ["4", "[1,", "9"], workers=workers)
+        by_item = {o.item: o for o in outcomes}
+        assert by_item["4"].result == 4 and by_item["9"].result == 9
+        assert not by_item["[1,"].ok and "JSONDecodeError" in by_item["[1,"].error

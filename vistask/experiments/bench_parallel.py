@@ -1,0 +1,128 @@
+"""Independent runs side by side (``scripts/bench_parallel.py``): the quick comparison with one
+and with W Ray workers, and grasp trials in gymnasium's ``AsyncVectorEnv`` processes and in
+Ray actors with one and with W workers.
+
+Every configuration runs the same work, one configuration after another, so the speed-ups are
+ratios measured in one run; each row also says whether its results equal the one-worker
+run's, value for value.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from collections.abc import Sequence
+from pathlib import Path
+
+import torch
+
+from vistask.experiments.compare import Comparison, compare
+from vistask.grasp import demonstration_density, run_trials, scripted_teacher_grasps
+from vistask.runs import run_dir, write_summary
+
+
+def _returns(summary: dict) -> list:
+    return [(r["method"], r["seed"], r["returns"]) for r in summary["runs"]]
+
+
+def bench_comparison(workers: Sequence[int], out: Path) -> list[dict]:
+    """``Comparison.quick()`` with each worker count. One worker runs in this process with
+    one torch thread, as each Ray worker does, so that the results can be equal."""
+    rows, reference = [], None
+    for n in workers:
+        threads = torch.get_num_threads()
+        torch.set_num_threads(1)
+        try:
+            t0 = time.perf_counter()
+            summary = compare(Comparison.quick(), out / f"compare-{n}", progress=False, workers=n)
+            seconds = time.perf_counter() - t0
+        finally:
+            torch.set_num_threads(threads)
+        reference = reference or _returns(summary)
+        rows.append(
+            {
+                "work": "quick comparison",
+                "runner": "map_runs",  # in this process with 1 worker, Ray tasks beyond
+                "workers": n,
+                "seconds": seconds,
+                "same_results": _returns(summary) == reference,
+            }
+        )
+    return rows
+
+
+def bench_grasp_trials(
+    workers: Sequence[int], trials: int, object_kind: str = "box", seed: int = 0
+) -> list[dict]:
+    """``trials`` grasp trials (placements 0..trials-1, grasps from the scripted teacher's
+    density) with each runner and worker count; seconds exclude starting the simulators."""
+    from vistask.envs.grasp_trial import RayGraspTrials, VectorGraspTrials
+
+    rows, reference = [], None
+    for name, make in (("processes", VectorGraspTrials), ("ray", RayGraspTrials)):
+        for n in workers:
+            t0 = time.perf_counter()
+            runner = make(object_kind, n)
+            try:
+                start = time.perf_counter() - t0
+                bounds = torch.as_tensor(runner.object_bounds, dtype=torch.float32)
+                generator = torch.Generator().manual_seed(seed)
+                teacher = scripted_teacher_grasps(bounds)
+                density = demonstration_density(teacher, generator=generator)
+                t1 = time.perf_counter()
+                _, success, _ = run_trials(
+                    density, runner, trials, range(trials), runner.workspace, generator
+                )
+                seconds = time.perf_counter() - t1
+            finally:
+                runner.close()
+            reference = success if reference is None else reference
+            rows.append(
+                {
+                    "work": f"{trials} grasp trials",
+                    "runner": name,
+                    "workers": n,
+                    "seconds": seconds,
+                    "start_seconds": start,
+                    "trials_per_minute": 60.0 * trials / seconds,
+                    "success_rate": float(success.float().mean()),
+                    "same_results": bool(torch.equal(success, reference)),
+                }
+            )
+    return rows
+
+
+def bench_parallel(
+    workers: Sequence[int] | None = None,
+    trials: int = 200,
+    parts: Sequence[str] = ("comparison", "grasps"),
+    out: str | Path | None = None,
+) -> dict:
+    """Run the benchmarks in ``parts``, print the table, write ``summary.json``.
+
+    Args:
+        workers: worker counts (default 1 and all cores); the first is the reference.
+        trials: grasp trials per configuration.
+        parts: "comparison" and/or "grasps".
+        out: output folder (default ``runs/bench_parallel-<time>``).
+    """
+    out = run_dir("bench_parallel", out)
+    workers = tuple(workers or sorted({1, os.cpu_count() or 1}))
+    rows = []
+    if "comparison" in parts:
+        rows += bench_comparison(workers, out)
+    if "grasps" in parts:
+        rows += bench_grasp_trials(workers, trials)
+    for row in rows:  # against the same work on the same runner with the fewest workers
+        same = [r for r in rows if (r["work"], r["runner"]) == (row["work"], row["runner"])]
+        row["speedup"] = min(same, key=lambda r: r["workers"])["seconds"] / row["seconds"]
+    summary = {"workers": workers, "cpus": os.cpu_count(), "rows": rows}
+    write_summary(out, summary)
+    print(f"{'work':18s} {'runner':10s} {'workers':>7s} {'seconds':>8s} {'speed-up':>8s} same")
+    for r in rows:
+        print(
+            f"{r['work']:18s} {r['runner']:10s} {r['workers']:7d} {r['seconds']:8.1f} "
+            f"{r['speedup']:8.2f} {r['same_results']}"
+        )
+    print(f"-> {out}")
+    return summary

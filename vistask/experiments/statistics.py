@@ -1,0 +1,278 @@
+"""Aggregate statistics over seeds, from rliable (Agarwal et al., 2021).
+
+Scores are arrays of one row per run (seed). rliable's stratified bootstrap resamples runs
+within each task; the comparisons here have one task (one env), so it is the ordinary
+bootstrap over seeds. Every function takes a ``seed`` and gives the same intervals for it:
+rliable draws its resamples from NumPy's global generator, so that generator is seeded for
+the call and restored afterwards.
+
+Example:
+    >>> curves = iqm_curves({"rlvc": returns_rlvc, "dqn": returns_dqn})  # (seeds, budgets)
+    >>> center, low, high = curves["rlvc"]
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from contextlib import contextmanager
+from pathlib import Path
+
+import numpy as np
+from scipy import stats
+
+RESAMPLES = 2000
+CONFIDENCE = 0.95
+METRICS = ("Median", "IQM", "Mean", "Optimality gap")
+
+
+@contextmanager
+def _seeded(seed: int) -> Iterator[None]:
+    state = np.random.get_state()
+    np.random.seed(seed)
+    try:
+        yield
+    finally:
+        np.random.set_state(state)
+
+
+def _intervals(
+    scores: Mapping[str, np.ndarray], func: Callable[..., np.ndarray], seed: int
+) -> dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """Point estimate and CI of ``func`` per method: (K,), (K,), (K,). ``func`` receives
+    rliable's (runs, tasks, ...) layout: here (S, 1, ...)."""
+    from rliable import library as rly
+
+    out = {}
+    with _seeded(seed):
+        for name, runs in scores.items():
+            runs = np.asarray(runs, dtype=float)[:, None]  # one task
+            point = np.asarray(func(runs), dtype=float)
+            if len(runs) < 2 or np.all(runs == runs[0]):  # nothing to resample
+                out[name] = (point, point.copy(), point.copy())
+                continue
+            _, ci = rly.get_interval_estimates(
+                {name: runs}, func, reps=RESAMPLES, confidence_interval_size=CONFIDENCE
+            )
+            low, high = ci[name]
+            out[name] = (point, np.minimum(low, point), np.maximum(high, point))
+    return out
+
+
+def iqm_curves(
+    scores: Mapping[str, np.ndarray], seed: int = 0
+) -> dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """Interquartile mean over seeds at every budget, with its 95% bootstrap interval.
+
+    Args:
+        scores: per method, (S, B) scores of S seeds at B budgets.
+
+    Returns:
+        per method, (B,) IQM, (B,) lower and (B,) upper bounds (equal to the IQM with one
+        seed, where there is nothing to resample).
+    """
+    for name, runs in scores.items():
+        if np.ndim(runs) != 2:
+            raise ValueError(f"{name}: scores must be (seeds, budgets), got {np.shape(runs)}")
+
+    def per_budget(runs: np.ndarray) -> np.ndarray:
+        # rliable's aggregate_iqm (a 25% trimmed mean) of every budget's column at once
+        return stats.trim_mean(runs[:, 0], 0.25, axis=0)
+
+    return _intervals(scores, per_budget, seed)
+
+
+def iqm_intervals(scores: Mapping[str, np.ndarray], seed: int = 0) -> dict[str, list[float]]:
+    """IQM over seeds of each named measure, with its 95% interval.
+
+    Args:
+        scores: per measure (or method), (S,) values of S seeds.
+
+    Returns:
+        per name, ``[iqm, low, high]``.
+    """
+    columns = {name: np.asarray(v, dtype=float)[:, None] for name, v in scores.items()}
+    return {
+        name: [float(center[0]), float(low[0]), float(high[0])]
+        for name, (center, low, high) in iqm_curves(columns, seed).items()
+    }
+
+
+def aggregate_metrics(
+    scores: Mapping[str, np.ndarray], seed: int = 0
+) -> dict[str, dict[str, list[float]]]:
+    """Median, IQM, mean and optimality gap of normalised final scores, with intervals.
+
+    Args:
+        scores: per method, (S,) scores of S seeds normalised so that 1 is the target
+            (here the oracle's return).
+
+    Returns:
+        per method and metric (``METRICS``), ``[estimate, low, high]``.
+    """
+    from rliable import metrics
+
+    def four(runs: np.ndarray) -> np.ndarray:
+        return np.array(
+            [
+                metrics.aggregate_median(runs),
+                metrics.aggregate_iqm(runs),
+                metrics.aggregate_mean(runs),
+                metrics.aggregate_optimality_gap(runs),
+            ]
+        )
+
+    out = {}
+    for name, (point, low, high) in _intervals(scores, four, seed).items():
+        out[name] = {
+            metric: [float(point[k]), float(low[k]), float(high[k])]
+            for k, metric in enumerate(METRICS)
+        }
+    return out
+
+
+def performance_profiles(
+    scores: Mapping[str, np.ndarray], taus: Sequence[float], seed: int = 0
+) -> dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """Fraction of runs whose normalised score exceeds each tau, with intervals.
+
+    Args:
+        scores: per method, (S,) normalised scores.
+        taus: (T,) thresholds.
+
+    Returns:
+        per method, (T,) fractions, (T,) lower and (T,) upper bounds.
+    """
+    taus = np.asarray(taus, dtype=float)
+    return _intervals(scores, lambda runs: (runs[..., None] > taus).mean(axis=(0, 1)), seed)
+
+
+def improvement_probabilities(
+    scores: Mapping[str, np.ndarray], pairs: Sequence[tuple[str, str]], seed: int = 0
+) -> dict[str, list[float]]:
+    """P(X > Y): the probability that a run of X scores above a run of Y, with intervals
+    from resampling both methods' runs independently.
+
+    Args:
+        scores: per method, (S,) scores.
+        pairs: (X, Y) method names.
+
+    Returns:
+        per pair ``"X,Y"``, ``[estimate, low, high]``.
+    """
+    from rliable import library as rly
+    from rliable import metrics
+
+    out = {}
+    with _seeded(seed):
+        for x, y in pairs:
+            sx = np.asarray(scores[x], dtype=float)[:, None]
+            sy = np.asarray(scores[y], dtype=float)[:, None]
+            point = float(metrics.probability_of_improvement(sx, sy))
+            if min(len(sx), len(sy)) < 2:
+                out[f"{x},{y}"] = [point, point, point]
+                continue
+            _, ci = rly.get_interval_estimates(
+                {"pair": [sx, sy]},
+                metrics.probability_of_improvement,
+                reps=RESAMPLES,
+                confidence_interval_size=CONFIDENCE,
+            )
+            low, high = np.ravel(ci["pair"])
+            out[f"{x},{y}"] = [point, min(float(low), point), max(float(high), point)]
+    return out
+
+
+# -- pictures (rliable's own plots) ---------------------------------------------------------
+def _save(fig, path: Path) -> None:
+    fig.savefig(path, dpi=120, bbox_inches="tight")
+    import matplotlib.pyplot as plt
+
+    plt.close(fig)
+
+
+def plot_aggregates(path: Path, aggregates: Mapping[str, Mapping[str, list[float]]]) -> None:
+    """rliable's interval plot of ``aggregate_metrics``' output."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from rliable import plot_utils
+
+    points = {m: np.array([v[k][0] for k in METRICS]) for m, v in aggregates.items()}
+    cis = {
+        m: np.array([[v[k][1] for k in METRICS], [v[k][2] for k in METRICS]])
+        for m, v in aggregates.items()
+    }
+    fig, _ = plot_utils.plot_interval_estimates(
+        points, cis, metric_names=list(METRICS), xlabel="return / oracle", xlabel_y_coordinate=-0.3
+    )
+    _save(fig, path)
+
+
+def plot_profiles(
+    path: Path, profiles: Mapping[str, tuple[np.ndarray, ...]], taus: Sequence[float]
+) -> None:
+    """rliable's performance-profile plot of ``performance_profiles``' output."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from rliable import plot_utils
+
+    fig, ax = plt.subplots(figsize=(7, 4.5))
+    plot_utils.plot_performance_profiles(
+        {m: p[0] for m, p in profiles.items()},
+        np.asarray(taus),
+        performance_profile_cis={m: np.stack([p[1], p[2]]) for m, p in profiles.items()},
+        xlabel=r"return / oracle ($\tau$)",
+        ax=ax,
+    )
+    ax.legend(list(profiles), fontsize="small", loc="lower left")
+    _save(fig, path)
+
+
+def plot_sample_efficiency(
+    path: Path,
+    budgets: Sequence[int],
+    curves: Mapping[str, tuple[np.ndarray, ...]],
+    oracle: float | None = None,
+) -> None:
+    """rliable's sample-efficiency plot of ``iqm_curves``' output (log x), with the oracle's
+    return and 90% of it as dashed and dotted lines."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from rliable import plot_utils
+
+    fig, ax = plt.subplots(figsize=(7, 4.5))
+    plot_utils.plot_sample_efficiency_curve(
+        np.asarray(budgets),
+        {m: c[0] for m, c in curves.items()},
+        {m: np.stack([c[1], c[2]]) for m, c in curves.items()},
+        xlabel="environment interactions",
+        ylabel="IQM discounted return",
+        labelsize="medium",
+        ticklabelsize="medium",
+        ax=ax,
+    )
+    if oracle is not None:
+        ax.axhline(oracle, color="k", linestyle="--", label="oracle (true state)")
+        ax.axhline(0.9 * oracle, color="k", linestyle=":", label="90% of oracle")
+    ax.set_xscale("log")
+    ax.legend(fontsize="small")
+    _save(fig, path)
+
+
+def plot_improvement(path: Path, probabilities: Mapping[str, list[float]]) -> None:
+    """rliable's probability-of-improvement plot of ``improvement_probabilities``' output."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from rliable import plot_utils
+
+    ax = plot_utils.plot_probability_of_improvement(
+        {pair: np.array([p[0]]) for pair, p in probabilities.items()},
+        {pair: np.array([[p[1]], [p[2]]]) for pair, p in probabilities.items()},
+        figsize=(5, 0.5 + 0.45 * len(probabilities)),
+    )
+    _save(ax.figure, path)
