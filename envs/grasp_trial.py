@@ -40,6 +40,7 @@ from typing import Any, ClassVar
 os.environ.setdefault("MUJOCO_GL", "egl")
 
 import gymnasium as gym
+import mujoco
 import numpy as np
 import torch
 from gymnasium import spaces
@@ -355,7 +356,8 @@ class GraspTrialEnv(gym.Env):
 
         Returns:
             observation, reward (1.0 success / 0.0), terminated=True, truncated=False, and
-            ``info``: ``success``, ``reason`` ("success", "unreachable", "missed", "dropped"),
+            ``info``: ``success``, ``reason`` ("success", "unreachable", "missed", "dropped",
+            or "simulator" when the simulation failed: ``error`` says how; "" otherwise),
             ``pregrasp_error_t`` / ``_r`` and ``grasp_error_t`` / ``_r`` (reached pose error at
             the pre-grasp and grasp poses: metres, radians; NaN if not reached), ``contact``
             (the gripper touches the object after closing), ``grasped`` (it still does at the
@@ -367,7 +369,14 @@ class GraspTrialEnv(gym.Env):
         grasp = check_grasp(action)
         start = time.perf_counter()
         self._done = True
-        info = self._execute(grasp)
+        unstable_before = self._instabilities()
+        try:
+            info = self._execute(grasp)
+            if self._instabilities() > unstable_before:
+                # MuJoCo resets a diverging simulation itself and counts a warning.
+                raise FloatingPointError("MuJoCo reset a simulation gone NaN or unbounded")
+        except Exception as error:  # a simulator failure ends this trial, not the run
+            info = self._failed_trial(f"{type(error).__name__}: {error}")
         info["wall_seconds"] = time.perf_counter() - start
         reward = 1.0 if info["success"] else 0.0
         return self._observe(), reward, True, False, info
@@ -417,7 +426,7 @@ class GraspTrialEnv(gym.Env):
         pre = pos - self.pregrasp_distance * rot.apply([0.0, 0.0, 1.0])
         steps0 = self._scene.timestep
         z0 = self._object_pose0[2]
-        info: dict[str, Any] = {"success": False, "contact": False, "grasped": False}
+        info: dict[str, Any] = {"success": False, "contact": False, "grasped": False, "error": ""}
 
         self._move(pre, rot, self.PHASES["pregrasp"], self.SETTLE["pregrasp"], -1.0)
         error_t, error_r = self._pose_error(pre, rot)
@@ -442,6 +451,30 @@ class GraspTrialEnv(gym.Env):
                 info["reason"] = "dropped" if info["contact"] else "missed"
         info["sim_seconds"] = float(self._scene.timestep - steps0) * self._scene.control_timestep
         return info
+
+    def _instabilities(self) -> int:
+        """MuJoCo's count of bad (NaN or huge) positions, velocities and accelerations."""
+        warnings = self._sim.data._data.warning
+        bad = (mujoco.mjtWarning.mjWARN_BADQPOS, mujoco.mjtWarning.mjWARN_BADQVEL)
+        return sum(int(warnings[w].number) for w in (*bad, mujoco.mjtWarning.mjWARN_BADQACC))
+
+    def _failed_trial(self, error: str) -> dict[str, Any]:
+        """The info of a trial the simulator could not finish (the next ``reset`` restores a
+        sound state): a failure whose ``reason`` is "simulator", with the error."""
+        nan = math.nan
+        return {
+            "success": False,
+            "contact": False,
+            "grasped": False,
+            "reason": "simulator",
+            "error": error,
+            "pregrasp_error_t": nan,
+            "pregrasp_error_r": nan,
+            "grasp_error_t": nan,
+            "grasp_error_r": nan,
+            "lift_height": nan,
+            "sim_seconds": nan,
+        }
 
     # -- observations -------------------------------------------------------------------
 

@@ -3,15 +3,16 @@
 import argparse
 import json
 
+from vistask.cli import positive_int
 from vistask.experiments.bench_features import bench_features
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
-    parser.add_argument("--percepts", type=int, default=2000)
-    parser.add_argument("--words", type=int, default=8192)
+    parser.add_argument("--percepts", type=positive_int, default=2000)
+    parser.add_argument("--words", type=positive_int, default=8192)
     parser.add_argument("--env-kwargs", type=json.loads, default={})
-    parser.add_argument("--threads", type=int, default=None, help="extraction threads")
+    parser.add_argument("--threads", type=positive_int, default=None, help="extraction threads")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", default=None, help="default runs/bench_features-<time>")
     args = parser.parse_args()

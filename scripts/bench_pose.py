@@ -19,7 +19,7 @@ from pathlib import Path
 
 import torch
 
-from vistask.cli import positive_int
+from vistask.cli import non_negative_int, positive_int
 from vistask.experiments.pose import PoseBenchmark, write_results
 from vistask.objects import NBP
 from vistask.runs import run_dir, tensorboard
@@ -33,25 +33,27 @@ def main() -> None:
     parser.add_argument("--objects", nargs="+", default=list(bench_defaults["objects"]))
     parser.add_argument(
         "--scenes",
-        type=int,
+        type=positive_int,
         default=bench_defaults["n_scenes"],
         help="scenes per object and condition",
     )
     parser.add_argument("--quick", action="store_true", help="2 scenes per object and condition")
     parser.add_argument("--seed", type=int, default=bench_defaults["seed"], help="first scene seed")
-    parser.add_argument("--particles", type=int, default=nbp_defaults["n_particles"])
+    parser.add_argument("--particles", type=positive_int, default=nbp_defaults["n_particles"])
     parser.add_argument(
         "--refine-iters",
-        type=int,
+        type=non_negative_int,
         default=nbp_defaults["refine_iters"],
         help="top-down refinement iterations of NBP's hypotheses (0: NBP modes as they are)",
     )
     parser.add_argument("--methods", nargs="+", default=list(bench_defaults["methods"]))
     parser.add_argument(
-        "--threads", type=int, default=1, help="torch CPU threads (1: no contention)"
+        "--threads", type=positive_int, default=1, help="torch CPU threads (1: no contention)"
     )
     parser.add_argument("--device", default="cpu", help="device of NBP (e.g. cuda)")
-    parser.add_argument("--pictures", type=int, default=1, help="pictures per object, condition")
+    parser.add_argument(
+        "--pictures", type=non_negative_int, default=1, help="pictures per object, condition"
+    )
     parser.add_argument(
         "--workers", type=positive_int, default=1, help="scenes side by side (Ray workers)"
     )

@@ -12,6 +12,7 @@ from pathlib import Path
 
 import torch
 
+from vistask.cli import positive_int
 from vistask.experiments.bench_se3 import run_benchmark
 from vistask.runs import print_table, run_dir, write_summary
 
@@ -27,12 +28,12 @@ def main() -> None:
     )
     parser.add_argument(
         "--threads",
-        type=int,
+        type=positive_int,
         default=1,
         help="torch CPU threads (default 1: on a shared 2-core machine OpenMP "
         "threads stall whenever another process holds a core)",
     )
-    parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--repeats", type=positive_int, default=5)
     args = parser.parse_args()
     out = run_dir("bench_se3", args.out)
     torch.set_num_threads(args.threads)

@@ -22,7 +22,7 @@ import sys
 
 import torch
 
-from vistask.cli import positive_int
+from vistask.cli import interrupt_on_sigterm, positive_int
 from vistask.experiments.compare import DEFAULT_BUDGETS, METHODS, Comparison, compare
 
 
@@ -86,6 +86,7 @@ def main() -> None:
     if args.threads:
         torch.set_num_threads(args.threads)
     config = Comparison.quick(**overrides) if args.quick else Comparison(**overrides)
+    interrupt_on_sigterm()
     summary = compare(config, args.out, workers=args.workers, address=args.address)
     sys.exit(1 if summary["failed"] else 0)
 

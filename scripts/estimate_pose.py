@@ -15,6 +15,7 @@ from pathlib import Path
 
 import torch
 
+from vistask.cli import non_negative_int, positive_int
 from vistask.experiments.pose import CONDITIONS, PoseBenchmark, write_results
 from vistask.objects import NBP
 from vistask.runs import run_dir, tensorboard
@@ -25,14 +26,14 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, default=None, help="output directory")
     parser.add_argument("--object", default="cereal", help="object kind")
-    parser.add_argument("--scenes", type=int, default=5)
+    parser.add_argument("--scenes", type=positive_int, default=5)
     parser.add_argument("--condition", default="clutter", choices=sorted(CONDITIONS))
-    parser.add_argument("--particles", type=int, default=nbp_defaults["n_particles"])
+    parser.add_argument("--particles", type=positive_int, default=nbp_defaults["n_particles"])
     parser.add_argument(
-        "--threads", type=int, default=1, help="torch CPU threads (1: no contention)"
+        "--threads", type=positive_int, default=1, help="torch CPU threads (1: no contention)"
     )
     parser.add_argument("--device", default="cpu", help="device of NBP (e.g. cuda)")
-    parser.add_argument("--pictures", type=int, default=5, help="scenes drawn")
+    parser.add_argument("--pictures", type=non_negative_int, default=5, help="scenes drawn")
     args = parser.parse_args()
     out = run_dir("estimate_pose", args.out)
     torch.set_num_threads(args.threads)

@@ -20,6 +20,7 @@ import torch
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 
+from vistask.cli import positive_int
 from vistask.envs.tabletop import OBJECTS, benchmark_scenes, make_scene, object_patches
 from vistask.runs import print_table, run_dir, write_summary
 from vistask.vision import view_patches
@@ -30,11 +31,13 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, default=None, help="output directory")
     parser.add_argument("--target", default="cereal", choices=sorted(OBJECTS))
-    parser.add_argument("--scenes", type=int, default=5, help="scenes to time (seeds 0..N-1)")
+    parser.add_argument(
+        "--scenes", type=positive_int, default=5, help="scenes to time (seeds 0..N-1)"
+    )
     parser.add_argument("--distractors", type=int, default=None, help="0-4 (default: random)")
     parser.add_argument("--cameras", nargs="+", default=["front"])
-    parser.add_argument("--image-size", type=int, default=256)
-    parser.add_argument("--threads", type=int, default=1, help="torch CPU threads")
+    parser.add_argument("--image-size", type=positive_int, default=256)
+    parser.add_argument("--threads", type=positive_int, default=1, help="torch CPU threads")
     args = parser.parse_args()
     out = run_dir("show_patches", args.out)
     torch.set_num_threads(args.threads)

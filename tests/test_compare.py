@@ -57,7 +57,7 @@ def test_quick_comparison_writes_every_output(quick_run):
     assert {r["method"] for r in rows} == set(DISCRETE_METHODS)
     table = (out / "table.md").read_text()
     assert all(f"| {name} |" in table for name in DISCRETE_METHODS)
-    for picture in ("curves", "aggregates", "profiles", "improvement"):
+    for picture in ("curves", "aggregates", "profiles", "improvement", "wallclock"):
         assert (out / f"{picture}.png").read_bytes()[:4] == b"\x89PNG"
     # One line per independent run: RLVC learns afresh at each budget, the others once.
     runs = [json.loads(line) for line in (out / "runs.jsonl").read_text().splitlines()]
@@ -67,6 +67,8 @@ def test_quick_comparison_writes_every_output(quick_run):
     )
     assert len(runs) == 2 * 2 * len(budgets) + 4 * 2  # rlvc, rlvc_compounds; 4 others
     assert summary["failed"] == []
+    dqn = on_disk["methods"]["dqn"]["curve"]["train_seconds"]
+    assert 0 < dqn[0] < dqn[1]  # one DQN trained on: more time behind the larger budget
     stats = summary["statistics"]
     assert set(stats["aggregates"]) == set(DISCRETE_METHODS)
     assert set(stats["improvement"]) == {f"rlvc,{m}" for m in DISCRETE_METHODS if m != "rlvc"}

@@ -126,3 +126,22 @@ def test_ray_actors_run_the_trials_of_local_processes() -> None:
     (grasps_ray, success_ray, _), (grasps_proc, success_proc, _) = results
     torch.testing.assert_close(grasps_ray, grasps_proc)
     assert torch.equal(success_ray, success_proc) and len(success_ray) == 5
+
+
+def test_a_simulation_gone_nan_fails_its_trial_and_the_next_one_runs(env, monkeypatch) -> None:
+    _, info = env.reset(seed=3)
+    grasp = top_down_grasp(info["object_pose"], info["object_bounds"])
+    act = env._act
+
+    def unstable(*args):
+        env._sim.data.qvel[:] = np.nan  # what a diverging integration leaves behind
+        act(*args)
+
+    monkeypatch.setattr(env, "_act", unstable)
+    _, reward, terminated, _, info = env.step(grasp)
+    assert reward == 0.0 and terminated
+    assert info["reason"] == "simulator" and "NaN or unbounded" in info["error"]
+    monkeypatch.undo()
+    _, info = env.reset(seed=3)
+    _, reward, _, _, info = env.step(top_down_grasp(info["object_pose"], info["object_bounds"]))
+    assert reward == 1.0 and info["reason"] == "success" and info["error"] == ""

@@ -11,7 +11,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy import integrate, stats
 
-from vistask.se3 import SE3KDE, identity_poses, mixture, product, random_poses
+from vistask.se3 import SE3KDE, identity_poses, kernels, mixture, product, random_poses
 from vistask.se3.kernels import log_quaternion_normalizer, quaternion_kappa
 
 
@@ -317,3 +317,50 @@ def test_clear_errors() -> None:
         path = "/tmp/_vistask_se3_wrong_type.pt"
         R3S2KDE(torch.tensor([[0.0, 0, 0, 0, 0, 1]]), sigma_t=0.1, sigma_r=0.1).save(path)
         SE3KDE.load(path)
+
+
+def _difference_form(points: torch.Tensor, queries: torch.Tensor, sigma_t: float, kappa: float):
+    """Unnormalised float64 density, 1 - |q . q_i| taken as min(|q - q_i|^2, |q + q_i|^2) / 2."""
+    p, x = points.double(), queries.double()
+    qp = torch.nn.functional.normalize(p[:, 3:], dim=-1)
+    qx = torch.nn.functional.normalize(x[:, 3:], dim=-1)
+    d2 = ((x[:, None, :3] - p[None, :, :3]) ** 2).sum(-1)
+    minus = ((qx[:, None] - qp[None]) ** 2).sum(-1)
+    plus = ((qx[:, None] + qp[None]) ** 2).sum(-1)
+    one_minus_dot = torch.minimum(minus, plus) / 2
+    return (torch.exp(-d2 / (2 * sigma_t**2) - kappa * one_minus_dot)).mean(dim=1)
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    log_sigma_t=st.floats(math.log10(kernels.SIGMA_T_MIN), 0.0),
+    log_sigma_r=st.floats(math.log10(kernels.SIGMA_R_MIN), math.log10(2 * math.pi)),
+    scale=st.sampled_from([0.01, 0.1, 1.0]),
+    seed=st.integers(0, 1000),
+)
+def test_float32_density_at_kernel_centres_keeps_its_precision(
+    log_sigma_t, log_sigma_r, scale, seed
+):
+    sigma_t, sigma_r = 10**log_sigma_t, 10**log_sigma_r
+    points = random_poses(
+        30, translation_scale=scale, generator=torch.Generator().manual_seed(seed)
+    )
+    density = SE3KDE(points, sigma_t=sigma_t, sigma_r=sigma_r)
+    expected = _difference_form(points, points, sigma_t, density.kappa)
+    for cutoff in (None, 13.0):  # 13 sigma: truncated pairs weigh exp(-84.5), below float32
+        got = density.evaluate(points, cutoff=cutoff).double()
+        torch.testing.assert_close(got, expected, rtol=1e-4, atol=0.0)
+
+
+@pytest.mark.parametrize(
+    ("sigma_t", "sigma_r", "name"),
+    [
+        (1e-20, 0.3, "sigma_t"),
+        (0.01, 1e-9, "sigma_r"),
+        (float("nan"), 0.3, "sigma_t"),
+        (0.01, 7.0, "sigma_r"),
+    ],
+)
+def test_bandwidths_float_precision_cannot_hold_are_refused(sigma_t, sigma_r, name):
+    with pytest.raises(ValueError, match=f"{name} must be .* got"):
+        SE3KDE(random_poses(3), sigma_t=sigma_t, sigma_r=sigma_r)

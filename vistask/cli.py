@@ -4,19 +4,44 @@ before any work starts."""
 from __future__ import annotations
 
 import argparse
+import math
+import signal
+from collections.abc import Callable
+
+
+def _checked(text: str, convert: Callable[[str], float], ok: Callable, accepted: str):
+    value = convert(text)
+    if not ok(value):
+        raise argparse.ArgumentTypeError(f"must be {accepted}, got {text}")
+    return value
 
 
 def positive_int(text: str) -> int:
     """An integer >= 1."""
-    value = int(text)
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be a positive integer, got {text}")
-    return value
+    return _checked(text, int, lambda v: v >= 1, "a positive integer")
+
+
+def non_negative_int(text: str) -> int:
+    """An integer >= 0."""
+    return _checked(text, int, lambda v: v >= 0, "an integer >= 0")
+
+
+def non_negative_float(text: str) -> float:
+    """A finite float >= 0."""
+    return _checked(text, float, lambda v: 0 <= v < math.inf, "a finite number >= 0")
 
 
 def unit_fraction(text: str) -> float:
     """A float in [0, 1)."""
-    value = float(text)
-    if not 0 <= value < 1:
-        raise argparse.ArgumentTypeError(f"must be in [0, 1), got {text}")
-    return value
+    return _checked(text, float, lambda v: 0 <= v < 1, "in [0, 1)")
+
+
+def interrupt_on_sigterm() -> None:
+    """Turn SIGTERM (a scheduler or ``kill`` stopping the run) into KeyboardInterrupt, so that
+    a stopped run closes its simulators and workers as Ctrl-C does; its checkpoints are
+    already on disk."""
+
+    def interrupt(signum, frame):
+        raise KeyboardInterrupt(f"signal {signum}")
+
+    signal.signal(signal.SIGTERM, interrupt)

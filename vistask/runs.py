@@ -56,3 +56,22 @@ def print_table(rows: dict[str, Any], title: str = "") -> None:
     for key, value in rows.items():
         text = f"{value:.4g}" if isinstance(value, float) else str(value)
         print(f"{key:<{width}}  {text}")
+
+
+def check_same_settings(path: str | Path, settings: dict) -> None:
+    """Write ``settings`` to ``path`` (JSON), or, if a stopped run left it there, check that
+    they are the same: resuming must never mix two configurations in one folder."""
+    path = Path(path)
+    settings = json.loads(json.dumps(_plain(settings)))
+    if not path.exists():
+        path.write_text(json.dumps(settings, indent=2) + "\n")
+        return
+    before = json.loads(path.read_text())
+    if before != settings:
+        changed = sorted(
+            k for k in settings.keys() | before.keys() if before.get(k) != settings.get(k)
+        )
+        raise ValueError(
+            f"{path.parent} holds a run with other settings ({', '.join(changed)}); resume it "
+            "with the same settings or pick another output folder"
+        )

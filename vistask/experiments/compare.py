@@ -34,7 +34,7 @@ from vistask.experiments import statistics
 from vistask.experiments.tasks import GridCells, Task, task_for
 from vistask.parallel import Outcome, in_process, map_runs, ray_session
 from vistask.rlvc import random_policy
-from vistask.runs import print_table, run_dir, tensorboard, write_summary
+from vistask.runs import check_same_settings, print_table, run_dir, tensorboard, write_summary
 
 DISCRETE_METHODS = ("rlvc", "rlvc_compounds", "dqn", "ppo", "tabular", "random")
 CONTINUOUS_METHODS = ("rljc", "sac", "ppo", "random")
@@ -194,11 +194,15 @@ class RunResult:
     train_seconds: float
     seconds: float
     classes: list[int] | None = None  # RLVC's (RLJC's joint) classes at each budget
+    # Training seconds behind each budget's policy (evaluation excluded): the x of the
+    # return-against-wall-clock curves.
+    seconds_at: list[float] | None = None
 
 
-# evaluate(policy) -> mean discounted return from the fixed starts; log(budget, value).
+# evaluate(policy) -> mean discounted return from the fixed starts;
+# log(budget, value, training seconds behind the policy evaluated).
 Evaluate = Callable[[Policy], float]
-Log = Callable[[int, float], None]
+Log = Callable[[int, float, float], None]
 
 
 def _random_policy(seed: int, space: gym.spaces.Space) -> Policy:
@@ -218,15 +222,15 @@ def run_visual(
     budgets: Sequence[int],
     evaluate: Evaluate,
     log: Log,
-) -> tuple[list[float], float, list[int]]:
+) -> tuple[list[float], list[float], list[int]]:
     """A fresh RLVCAgent ("rlvc", "rlvc_compounds") or RLJCAgent ("rljc") per budget: they
     learn from a fixed database of B interactions.
 
     Every ``run_*`` returns the evaluation return at each budget and the training seconds
-    (evaluation excluded); ``log`` receives each (budget, return) as it is measured. RLVC and
-    RLJC also return their number of classes at each budget.
+    behind each (evaluation excluded); ``log`` receives each (budget, return, seconds) as it
+    is measured. RLVC and RLJC also return their number of classes at each budget.
     """
-    returns, train, classes = [], 0.0, []
+    returns, seconds, classes = [], [], []
     for budget in budgets:
         env = gym.make(config.env_id, **config.env_kwargs)
         t0 = time.perf_counter()
@@ -235,11 +239,11 @@ def run_visual(
         else:
             agent = RLVCAgent(env, compounds=method == "rlvc_compounds", seed=seed)
         agent.learn(budget, progress_bar=False)
-        train += time.perf_counter() - t0
+        seconds.append(time.perf_counter() - t0)
         returns.append(evaluate(lambda percepts, positions, a=agent: a.predict(percepts)[0]))
         classes.append(agent.learner.n_classes)
-        log(budget, returns[-1])
-    return returns, train, classes
+        log(budget, returns[-1], seconds[-1])
+    return returns, seconds, classes
 
 
 def run_tabular(
@@ -250,30 +254,31 @@ def run_tabular(
     log: Log,
     task: Task,
     grid: int,
-) -> tuple[list[float], float]:
+) -> tuple[list[float], list[float]]:
     """Q-learning on true-state grid cells, trained once and evaluated at every budget."""
     env = GridCells(gym.make(config.env_id, **config.env_kwargs), task, grid)
     agent = TabularQAgent(env, seed=seed)
     policy = lambda percepts, states: agent.predict(task.cells(states, grid))[0]  # noqa: E731
-    returns, train = [], 0.0
+    returns, seconds, train = [], [], 0.0
     for budget in budgets:
         t0 = time.perf_counter()
         agent.learn(budget - agent.num_timesteps, reset_num_timesteps=False)
         train += time.perf_counter() - t0
+        seconds.append(train)
         returns.append(evaluate(policy))
-        log(budget, returns[-1])
-    return returns, train
+        log(budget, returns[-1], train)
+    return returns, seconds
 
 
 def run_random(
     seed: int, budgets: Sequence[int], evaluate: Evaluate, log: Log, task: Task
-) -> tuple[list[float], float]:
+) -> tuple[list[float], list[float]]:
     """Uniformly random actions: no learning, the same score at every budget up to noise."""
     returns = []
     for budget in budgets:
         returns.append(evaluate(_random_policy(seed + budget, task.env.action_space)))
-        log(budget, returns[-1])
-    return returns, 0.0
+        log(budget, returns[-1], 0.0)
+    return returns, [0.0] * len(returns)
 
 
 def run_sb3(
@@ -284,23 +289,24 @@ def run_sb3(
     evaluate: Evaluate,
     log: Log,
     tb_dir: Path,
-) -> tuple[list[float], float]:
+) -> tuple[list[float], list[float]]:
     """SB3 DQN, PPO or SAC with ``CnnPolicy`` on the raw percepts, one ``learn`` call whose
     callback evaluates the current policy when it passes each budget."""
     from stable_baselines3 import DQN, PPO, SAC
     from stable_baselines3.common.callbacks import BaseCallback
     from stable_baselines3.common.env_util import make_vec_env
 
-    budgets, returns = list(budgets), []
-    eval_seconds = [0.0]
+    budgets, returns, seconds = list(budgets), [], []
+    clock = {"start": 0.0, "evaluating": 0.0}
 
     class EvaluateAtBudgets(BaseCallback):
         def _on_step(self) -> bool:
             while len(returns) < len(budgets) and self.num_timesteps >= budgets[len(returns)]:
                 t0 = time.perf_counter()
+                seconds.append(t0 - clock["start"] - clock["evaluating"])
                 returns.append(evaluate(_model_policy(self.model)))
-                eval_seconds[0] += time.perf_counter() - t0
-                log(budgets[len(returns) - 1], returns[-1])
+                clock["evaluating"] += time.perf_counter() - t0
+                log(budgets[len(returns) - 1], returns[-1], seconds[-1])
             return len(returns) < len(budgets)
 
     cls = {"dqn": DQN, "ppo": PPO, "sac": SAC}[method]
@@ -319,11 +325,11 @@ def run_sb3(
         verbose=0,
         **config.sb3_kwargs(method),
     )
-    t0 = time.perf_counter()
+    clock["start"] = time.perf_counter()
     model.learn(
         total_timesteps=max(budgets), callback=EvaluateAtBudgets(), tb_log_name=f"{method}-sb3"
     )
-    return returns, time.perf_counter() - t0 - eval_seconds[0]
+    return returns, seconds
 
 
 VISUAL_METHODS = ("rlvc", "rlvc_compounds", "rljc")  # a fresh agent per budget
@@ -369,25 +375,28 @@ def run_method(config: Comparison, spec: RunSpec, task: Task, tb_root: Path) -> 
 
     writer = tensorboard(tb_root / f"{method}-seed{seed}")
 
-    def log(budget: int, value: float) -> None:
+    def log(budget: int, value: float, seconds: float) -> None:
         writer.add_scalar("eval/return", value, budget)
+        writer.add_scalar("eval/train_seconds", seconds, budget)
         writer.flush()
 
     t0, classes = time.perf_counter(), None
     if method in ("dqn", "ppo", "sac"):
         sb3_logs = tb_root / f"seed{seed}"
-        returns, train = run_sb3(config, method, seed, budgets, evaluate, log, sb3_logs)
+        returns, at = run_sb3(config, method, seed, budgets, evaluate, log, sb3_logs)
     elif method in VISUAL_METHODS:
-        returns, train, classes = run_visual(config, method, seed, budgets, evaluate, log)
+        returns, at, classes = run_visual(config, method, seed, budgets, evaluate, log)
     elif method == "tabular":
-        returns, train = run_tabular(config, seed, budgets, evaluate, log, task, spec.grid)
+        returns, at = run_tabular(config, seed, budgets, evaluate, log, task, spec.grid)
     else:
-        returns, train = run_random(seed, budgets, evaluate, log, task)
+        returns, at = run_random(seed, budgets, evaluate, log, task)
     writer.close()
     if len(returns) != len(budgets):
         raise RuntimeError(f"{method} produced {len(returns)} of {len(budgets)} returns")
+    # A visual learner's budgets are separate agents; the others train one agent on.
+    train = sum(at) if method in VISUAL_METHODS else at[-1]
     seconds = time.perf_counter() - t0
-    return RunResult(method, seed, list(budgets), returns, train, seconds, classes)
+    return RunResult(method, seed, list(budgets), returns, train, seconds, classes, at)
 
 
 def _task(config: Comparison) -> Task | None:
@@ -424,25 +433,30 @@ def merge_runs(units: Sequence[RunResult], budgets: Sequence[int]) -> list[RunRe
         groups.setdefault((r.method, r.seed), []).append(r)
     merged = []
     for (method, seed), runs in groups.items():
-        by_budget = {}
+        at = {}  # budget -> (return, classes, training seconds)
         for r in runs:
             for j, b in enumerate(r.budgets):
-                by_budget[b] = (r.returns[j], None if r.classes is None else r.classes[j])
-        if set(by_budget) != set(budgets):
+                at[b] = (r.returns[j], _item(r.classes, j), _item(r.seconds_at, j))
+        if set(at) != set(budgets):
             continue
-        classes = [by_budget[b][1] for b in budgets]
+        returns, classes, seconds = (list(v) for v in zip(*(at[b] for b in budgets), strict=True))
         merged.append(
             RunResult(
                 method,
                 seed,
                 list(budgets),
-                [by_budget[b][0] for b in budgets],
+                returns,
                 sum(r.train_seconds for r in runs),
                 sum(r.seconds for r in runs),
                 None if classes[0] is None else classes,
+                None if seconds[0] is None else seconds,
             )
         )
     return merged
+
+
+def _item(values: list | None, j: int):
+    return None if values is None else values[j]
 
 
 def tabular_grid(results: list[RunResult]) -> int:
@@ -477,8 +491,11 @@ def aggregate(
         runs = [r for r in results if r.method == method]
         values = scores[method]
         center, low, high = curves[method]
+        curve = {"iqm": center, "ci_low": low, "ci_high": high, "per_seed": values}
+        if all(r.seconds_at is not None for r in runs):
+            curve["train_seconds"] = np.median([r.seconds_at for r in runs], axis=0)
         entry = {
-            "curve": {"iqm": center, "ci_low": low, "ci_high": high, "per_seed": values},
+            "curve": curve,
             "final_return": float(center[-1]),
             "final_ci": [float(low[-1]), float(high[-1])],
             "oracle_return": oracle_return,
@@ -602,7 +619,8 @@ def final_statistics(methods: dict[str, dict], learner: str | None) -> dict[str,
 
 def write_pictures(out: Path, methods: dict[str, dict], stats: dict, budgets, oracle: float):
     """rliable's plots: ``curves.png`` (IQM return against interactions, log x, with 95%
-    intervals), ``aggregates.png``, ``profiles.png`` and ``improvement.png``."""
+    intervals), ``aggregates.png``, ``profiles.png`` and ``improvement.png``; and
+    ``wallclock.png``, the return against training seconds."""
     curves = {
         name: (np.array(c["iqm"]), np.array(c["ci_low"]), np.array(c["ci_high"]))
         for name, c in ((n, m["curve"]) for n, m in methods.items())
@@ -615,8 +633,35 @@ def write_pictures(out: Path, methods: dict[str, dict], stats: dict, budgets, or
         if name != "taus"
     }
     statistics.plot_profiles(out / "profiles.png", profiles, PROFILE_TAUS)
+    plot_wallclock(out / "wallclock.png", methods, oracle)
     if stats["improvement"]:
         statistics.plot_improvement(out / "improvement.png", stats["improvement"])
+
+
+def plot_wallclock(path: Path, methods: dict[str, dict], oracle: float) -> None:
+    """IQM return against the median training seconds behind it (log x), per method that
+    trains (the random baseline does not)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7, 4.5))
+    for name, m in methods.items():
+        seconds = m["curve"].get("train_seconds")
+        if seconds is None or not np.all(np.asarray(seconds) > 0):
+            continue
+        ax.plot(seconds, m["curve"]["iqm"], marker="o", label=name)
+    ax.axhline(oracle, color="k", linestyle="--", label="oracle (true state)")
+    ax.axhline(0.9 * oracle, color="k", linestyle=":", label="90% of oracle")
+    ax.set_xscale("log")
+    ax.set_xlabel("training seconds (median over seeds; one CPU thread in a Ray worker)")
+    ax.set_ylabel("IQM discounted return")
+    ax.legend(fontsize="small")
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
 
 
 # -- the whole comparison -----------------------------------------------------------------
@@ -624,18 +669,7 @@ def load_finished(out: Path, config: Comparison) -> list[RunResult]:
     """The runs already in ``out/runs.jsonl`` (none for a new folder). ``out`` must hold a
     comparison with the same settings (``comparison.json``), so that resuming never mixes two
     comparisons."""
-    params = json.loads(json.dumps(config.params()))
-    saved = out / "comparison.json"
-    if saved.exists():
-        before = json.loads(saved.read_text())
-        if before != params:
-            changed = sorted(k for k in params if before.get(k) != params[k])
-            raise ValueError(
-                f"{out} holds a comparison with other settings ({', '.join(changed)}); "
-                "resume it with the same settings or pick another output folder"
-            )
-    else:
-        saved.write_text(json.dumps(params, indent=2) + "\n")
+    check_same_settings(out / "comparison.json", config.params())
     path = out / "runs.jsonl"
     if not path.exists():
         return []
@@ -660,7 +694,8 @@ def compare(
 
     Writes under ``out`` (default ``runs/compare-<time>/``): ``comparison.json`` (settings),
     ``runs.jsonl``, ``curves.csv``, ``table.md``, ``summary.json``, rliable's pictures
-    (``curves.png``, ``aggregates.png``, ``profiles.png``, ``improvement.png``) and
+    (``curves.png``, ``aggregates.png``, ``profiles.png``, ``improvement.png``),
+    ``wallclock.png`` and
     ``tensorboard/`` (``<method>-seed<k>`` with ``eval/return`` against interactions for
     every method, ``seed<k>/<dqn|ppo|sac>-sb3_1`` with SB3's own training logs).
 

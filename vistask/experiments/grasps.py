@@ -30,8 +30,11 @@ from vistask.grasp.hypothesis import (
 from vistask.grasp.learning import GraspLearner, evaluate_density
 from vistask.grasp.plots import density_figure
 from vistask.parallel import cluster_address
-from vistask.runs import tensorboard, write_summary
+from vistask.runs import check_same_settings, tensorboard, write_summary
+from vistask.saving import load_state, save_state
 from vistask.se3 import SE3KDE
+
+CHECKPOINT = "GraspExperimentCheckpoint"  # the kind of file of an object's last cycle
 
 # Placement seeds: learning and evaluation never share a placement.
 LEARN_SEED_BASE = 1_000_000
@@ -155,6 +158,11 @@ class GraspExperiment:
         self.seed = seed
         self.address = address
 
+    def settings(self) -> dict[str, Any]:
+        """The arguments that decide the results (not ``num_envs`` and ``address``, which
+        decide only where the trials run)."""
+        return {k: v for k, v in vars(self).items() if k not in ("num_envs", "address")}
+
     def learn_object(self, kind: str, out: Path, writer=None, progress=None) -> dict[str, Any]:
         """Run hypothesis evaluation, learning and empirical evaluation for one object.
 
@@ -183,10 +191,6 @@ class GraspExperiment:
         try:
             bounds = torch.as_tensor(runner.object_bounds, dtype=torch.float32)
             patches = object_patches_for(kind)
-            hypothesis = hypothesis_density(
-                kind, self.hypothesis, bounds, self.sigma_t, self.sigma_r, patches, generator
-            )
-            hypothesis.save(out / "hypothesis.pt")
             step = (lambda n: progress.update(n)) if progress is not None else None
             eval_seeds = range(EVAL_SEED_BASE, EVAL_SEED_BASE + self.eval_trials)
 
@@ -207,19 +211,38 @@ class GraspExperiment:
                     figures[name] = r["success_rate"]
                 return figures
 
-            hyp_eval = evaluate(hypothesis)
-
-            learner = GraspLearner(
-                hypothesis,
-                runner.workspace,
-                c_rel=self.c_rel,
-                sigma_t=self.empirical_sigma_t,
-                sigma_r=self.empirical_sigma_r,
-            )
+            checkpoint = out / "checkpoint.pt"
+            if checkpoint.exists():  # resume after the last finished cycle
+                saved = load_state(checkpoint, CHECKPOINT)
+                learner = GraspLearner.from_state_dict(saved["learner"])
+                hypothesis, hyp_eval = learner.hypothesis, saved["hypothesis_eval"]
+                generator.set_state(saved["generator"])
+                if step is not None:
+                    step(2 * self.eval_trials + len(learner.trials))
+            else:
+                hypothesis = hypothesis_density(
+                    kind, self.hypothesis, bounds, self.sigma_t, self.sigma_r, patches, generator
+                )
+                hypothesis.save(out / "hypothesis.pt")
+                hyp_eval = evaluate(hypothesis)
+                learner = GraspLearner(
+                    hypothesis,
+                    runner.workspace,
+                    c_rel=self.c_rel,
+                    sigma_t=self.empirical_sigma_t,
+                    sigma_r=self.empirical_sigma_r,
+                )
             n = self.trials_per_cycle
-            for k in range(self.cycles):
+            for k in range(len(learner.history), self.cycles):
                 base = LEARN_SEED_BASE + 100_000 * k
                 stats = learner.run_cycle(runner, n, range(base, base + n), generator, step)
+                # Everything the next cycle needs, so that a stop loses at most this cycle.
+                state = {
+                    "learner": learner.state_dict(),
+                    "generator": generator.get_state(),
+                    "hypothesis_eval": hyp_eval,
+                }
+                save_state(checkpoint, CHECKPOINT, state)
                 if writer is not None:
                     for name in ("success_rate", "effective_sample_size", "trials", "particles"):
                         writer.add_scalar(f"{kind}/{name}", getattr(stats, name), k)
@@ -265,10 +288,17 @@ class GraspExperiment:
 
     def run(self, out: Path) -> dict[str, Any]:
         """All objects; writes ``out/summary.json`` (the settings under ``config``, the
-        figures per object under ``objects``) and TensorBoard logs."""
+        figures per object under ``objects``) and TensorBoard logs.
+
+        A folder that a stopped run left is resumed: objects already finished
+        (``<object>/summary.json``) are kept, the one in progress continues after its last
+        finished cycle (``<object>/checkpoint.pt``), with the results of a run straight
+        through. The settings must be those of the stopped run (``config.json``).
+        """
         from tqdm import tqdm
 
         out.mkdir(parents=True, exist_ok=True)
+        check_same_settings(out / "config.json", self.settings())
         per_object = self.cycles * self.trials_per_cycle + 4 * self.eval_trials
         writer = tensorboard(out)
         results: dict[str, Any] = {}
@@ -276,7 +306,13 @@ class GraspExperiment:
             with tqdm(total=per_object * len(self.objects), unit="trial") as bar:
                 for kind in self.objects:
                     bar.set_description(kind)
+                    done = out / kind / "summary.json"
+                    if done.exists():
+                        results[kind] = json.loads(done.read_text())
+                        bar.update(per_object)
+                        continue
                     results[kind] = self.learn_object(kind, out / kind, writer, bar)
+                    write_summary(done, results[kind])
         finally:
             writer.close()
         summary = {"config": dict(vars(self)), "objects": results}

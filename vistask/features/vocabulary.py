@@ -24,6 +24,7 @@ import torch
 from vistask.features.compounds import Compound, Occurrences, add_compound_occurrences
 from vistask.features.keypoints import Keypoints, SiftExtractor
 from vistask.kmeans import kmeans, nearest_centroids
+from vistask.saving import load_state, save_state
 
 SMALL_BATCH = 200  # descriptors: below, one product with every prototype beats the group loop
 
@@ -386,9 +387,8 @@ class VisualFeatureExtractor:
         )
 
     def save(self, path: str | Path) -> None:
-        torch.save(self.state_dict(), path)
+        save_state(path, "VisualFeatureExtractor", self.state_dict())
 
     @classmethod
     def load(cls, path: str | Path) -> VisualFeatureExtractor:
-        state = torch.load(path, weights_only=True)
-        return cls.from_state_dict(state)
+        return cls.from_state_dict(load_state(path, "VisualFeatureExtractor"))

@@ -31,6 +31,7 @@ from typing import Any, Protocol
 import roma
 import torch
 
+from vistask.saving import load_state, save_state
 from vistask.se3 import SE3KDE, check_poses, compose
 
 
@@ -366,12 +367,16 @@ class GraspLearner:
 
     def save(self, path: str | Path) -> None:
         """Save the hypothesis, all trials (hence the empirical density) and the history."""
-        torch.save(self.state_dict(), path)
+        save_state(path, "GraspLearner", self.state_dict())
 
     @classmethod
     def load(cls, path: str | Path) -> GraspLearner:
         """Load a learner written by ``save``; its proposal is the empirical density."""
-        state = torch.load(path, map_location="cpu", weights_only=True)
+        return cls.from_state_dict(load_state(path, "GraspLearner"))
+
+    @classmethod
+    def from_state_dict(cls, state: dict[str, Any]) -> GraspLearner:
+        """The learner of ``state_dict()``: the same trials, proposals and history."""
         ws = state["workspace"]
         learner = cls(
             SE3KDE.from_state_dict(state["hypothesis"]),

@@ -24,6 +24,7 @@ import torch
 from scipy.cluster.vq import kmeans2
 from torch import Tensor
 
+from vistask.saving import load_state, save_state
 from vistask.se3 import SE3KDE, identity_poses, relative
 from vistask.vision import Patches
 
@@ -251,13 +252,13 @@ class ObjectModel:
         }
 
     def save(self, path: str | Path) -> None:
-        """Save the model (plain dict of tensors, torch.save)."""
-        torch.save(self.state_dict(), path)
+        """Save the model (``vistask.saving``: atomic, checked on load)."""
+        save_state(path, "ObjectModel", self.state_dict())
 
     @classmethod
     def load(cls, path: str | Path) -> ObjectModel:
         """Load a model written by ``save``."""
-        state = torch.load(path, map_location="cpu", weights_only=True)
+        state = load_state(path, "ObjectModel")
         features = [
             Feature(
                 tuple(f["children"]),

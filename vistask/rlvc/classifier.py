@@ -13,6 +13,7 @@ from vistask.features import Compound, VisualFeatureExtractor, check_image
 from vistask.rlvc.bdd import ClassBDD
 from vistask.rlvc.joint_tree import JointTree
 from vistask.rlvc.tree import ClassTree
+from vistask.saving import load_state, save_state
 
 
 class VisualClassifier:
@@ -78,11 +79,11 @@ class VisualClassifier:
         return cls(extractor, kinds[state["kind"]].from_state_dict(state["structure"]), compounds)
 
     def save(self, path: str | Path) -> None:
-        torch.save(self.state_dict(), path)
+        save_state(path, "VisualClassifier", self.state_dict())
 
     @classmethod
     def load(cls, path: str | Path, extractor: VisualFeatureExtractor | None = None):
-        return cls.from_state_dict(torch.load(path, weights_only=True), extractor)
+        return cls.from_state_dict(load_state(path, "VisualClassifier"), extractor)
 
 
 class JointClassifier:
@@ -146,8 +147,8 @@ class JointClassifier:
         )
 
     def save(self, path: str | Path) -> None:
-        torch.save(self.state_dict(), path)
+        save_state(path, "JointClassifier", self.state_dict())
 
     @classmethod
     def load(cls, path: str | Path) -> JointClassifier:
-        return cls.from_state_dict(torch.load(path, weights_only=True))
+        return cls.from_state_dict(load_state(path, "JointClassifier"))

@@ -28,6 +28,7 @@ from vistask.rlvc.database import InteractionDatabase
 from vistask.rlvc.solver import estimate_mdp, state_values, td_errors, value_iteration
 from vistask.rlvc.split import Split, find_splits
 from vistask.rlvc.tree import ClassTree
+from vistask.saving import load_state, save_state
 
 
 @contextmanager
@@ -397,11 +398,11 @@ class RLVC:
         return rlvc
 
     def save(self, path: str | Path) -> None:
-        torch.save(self.state_dict(), path)
+        save_state(path, "RLVC", self.state_dict())
 
     @classmethod
     def load(cls, path: str | Path) -> RLVC:
-        return cls.from_state_dict(torch.load(path, weights_only=True))
+        return cls.from_state_dict(load_state(path, "RLVC"))
 
 
 __all__ = ["RLVC", "Split", "StageRecord"]

@@ -29,6 +29,7 @@ from vistask.rlvc.split import (
     find_threshold_splits,
     first_in_group,
 )
+from vistask.saving import load_state, save_state
 
 
 def joint_values(
@@ -367,8 +368,8 @@ class RLJC:
         return rljc
 
     def save(self, path: str | Path) -> None:
-        torch.save(self.state_dict(), path)
+        save_state(path, "RLJC", self.state_dict())
 
     @classmethod
     def load(cls, path: str | Path) -> RLJC:
-        return cls.from_state_dict(torch.load(path, weights_only=True))
+        return cls.from_state_dict(load_state(path, "RLJC"))

@@ -19,14 +19,29 @@ KERNELS = ("gaussian", "triangular")
 # (and meaningless next to the kernel's peak of 1), so exponents are clamped here first.
 LOG_FLOOR = -87.0
 
+# Narrowest bandwidths a kernel can hold: a float32 pose resolves about 1e-7 m at 1 m and
+# 1e-7 rad, and the float64 terms below keep a kernel's exponent to 1e-6 down to these.
+SIGMA_T_MIN = 1e-5  # metres
+SIGMA_R_MIN = 1e-5  # radians
+# Largest error allowed in a kernel's exponent (a relative error of the kernel value): a term
+# whose float32 cancellation error would exceed it is computed in float64.
+EXPONENT_TOLERANCE = 1e-6
+_EPS32 = float(torch.finfo(torch.float32).eps)
+
 
 def check_bandwidth(sigma_t: float, sigma_r: float) -> tuple[float, float]:
     """Validate the position and orientation bandwidths and return them as floats."""
     sigma_t, sigma_r = float(sigma_t), float(sigma_r)
-    if not (math.isfinite(sigma_t) and sigma_t > 0):
-        raise ValueError(f"sigma_t must be a positive finite number, got {sigma_t}")
-    if not (math.isfinite(sigma_r) and 0 < sigma_r <= 2 * math.pi):
-        raise ValueError(f"sigma_r must be in (0, 2 pi] radians, got {sigma_r}")
+    if not (math.isfinite(sigma_t) and sigma_t >= SIGMA_T_MIN):
+        raise ValueError(
+            f"sigma_t must be a finite number of metres >= {SIGMA_T_MIN} (narrower kernels "
+            f"are below what float precision holds), got {sigma_t}"
+        )
+    if not (math.isfinite(sigma_r) and SIGMA_R_MIN <= sigma_r <= 2 * math.pi):
+        raise ValueError(
+            f"sigma_r must be in [{SIGMA_R_MIN}, 2 pi] radians (narrower kernels are below "
+            f"what float precision holds), got {sigma_r}"
+        )
     return sigma_t, sigma_r
 
 
@@ -40,9 +55,10 @@ def quaternion_kappa(sigma_r: float) -> float:
     """Concentration for a rotation bandwidth (nuklei): kappa = 1 / (1 - cos(sigma_r / 2)).
 
     Since q . q_i = cos(theta / 2) for a rotation angle theta, the kernel is about
-    exp(-theta^2 / sigma_r^2) for small angles.
+    exp(-theta^2 / sigma_r^2) for small angles. 1 - cos x is computed as 2 sin^2(x / 2), which
+    keeps its digits for small bandwidths.
     """
-    return 1.0 / (1.0 - math.cos(sigma_r / 2.0))
+    return 0.5 / math.sin(sigma_r / 4.0) ** 2
 
 
 def direction_kappa(sigma_r: float) -> float:
@@ -51,7 +67,7 @@ def direction_kappa(sigma_r: float) -> float:
     v . v_i = cos(theta) for the angle theta between the directions, so the kernel is about
     exp(-theta^2 / sigma_r^2) for small angles, matching the quaternion convention.
     """
-    return 1.0 / (1.0 - math.cos(sigma_r))
+    return 0.5 / math.sin(sigma_r / 2.0) ** 2
 
 
 def log_quaternion_normalizer(kappa: float) -> float:
@@ -191,16 +207,19 @@ def systematic_resample(
 
 
 class PairTerms:
-    """Particle-side matrices for fused kernel evaluation against many queries.
+    """Particle-side terms of a kernel, shared by every query block.
 
-    For the Gaussian kernel the log position term -|t - t_i|^2 / (2 s^2) - kappa is one matmul of
+    For the Gaussian kernel the log position term -|t - t_i|^2 / (2 s^2) is one matmul of
     (Q, 5) query features [t / s^2, -|t|^2 / (2 s^2), 1] with (N, 5) particle features
-    [t_i, 1, -|t_i|^2 / (2 s^2) - kappa]; for the triangular kernel the same matmul gives
-    |t - t_i|^2. The direction term is |(kappa u) . u_i|, a second matmul. No (Q, N, D)
-    intermediate is ever formed; the (Q, N) block is combined in place.
+    [t_i, 1, -|t_i|^2 / (2 s^2)]; for the triangular kernel the same matmul gives
+    |t - t_i|^2. The direction term kappa (|u . u_i| - 1) comes from a second matmul. No
+    (Q, N, D) intermediate is ever formed; the (Q, N) block is combined in place.
 
-    Translations are centred on the particles' mean first so that the expanded squared distance
-    does not lose float32 precision far from the origin.
+    Both expanded forms cancel large terms: in float32 the position term loses about
+    eps (R / s)^2 (R: the particles' spread about their mean, on which translations are
+    centred) and the direction term about eps kappa. Each term whose loss would exceed
+    ``EXPONENT_TOLERANCE`` is computed in float64 (``position_dtype``, ``direction_dtype``),
+    so a float32 density keeps its precision for every bandwidth it accepts.
     """
 
     def __init__(
@@ -214,20 +233,28 @@ class PairTerms:
     ) -> None:
         self.center = t.mean(dim=0) if t.numel() else t.new_zeros(3)
         self.sigma_t, self.kappa, self.kernel = sigma_t, kappa, kernel
+        self.dtype = t.dtype
+        precise = torch.float64 if t.dtype == torch.float32 else t.dtype
         tc = t - self.center
+        spread = float(tc.norm(dim=1).max()) if t.numel() else 0.0
+        loss_t = _EPS32 * (spread / sigma_t) ** 2 * (4.0 if kernel == "gaussian" else 1.0)
+        self.position_dtype = precise if loss_t > EXPONENT_TOLERANCE else t.dtype
+        self.direction_dtype = precise if _EPS32 * kappa * 4.0 > EXPONENT_TOLERANCE else t.dtype
+        tc = (t.to(self.position_dtype) - self.center.to(self.position_dtype)).contiguous()
         sq = (tc * tc).sum(dim=1, keepdim=True)
         ones = torch.ones_like(sq)
         if kernel == "gaussian":
-            self.features = torch.cat([tc, ones, -sq / (2 * sigma_t**2) - kappa], dim=1)
+            self.features = torch.cat([tc, ones, -sq / (2 * sigma_t**2)], dim=1)
         else:
             self.features = torch.cat([tc, ones, sq], dim=1)
-        self.t = tc
-        self.u = u
+        self.t = tc.to(t.dtype)
+        self.u = _unit(u, self.direction_dtype)
         self.weights = weights
 
     def query_features(self, t: torch.Tensor, u: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """(Q, 3), (Q, D) queries -> (Q, 5) position features, (Q, D) kappa-scaled directions."""
-        tc = t - self.center
+        """(Q, 3), (Q, D) queries -> (Q, 5) position features, (Q, D) unit directions, in
+        the terms' dtypes."""
+        tc = t.to(self.position_dtype) - self.center.to(self.position_dtype)
         sq = (tc * tc).sum(dim=1, keepdim=True)
         ones = torch.ones_like(sq)
         if self.kernel == "gaussian":
@@ -235,7 +262,22 @@ class PairTerms:
             feats = torch.cat([tc / s2, -sq / (2 * s2), ones], dim=1)
         else:
             feats = torch.cat([-2 * tc, sq, ones], dim=1)
-        return feats, u * self.kappa
+        return feats, _unit(u, self.direction_dtype)
+
+
+def _unit(u: torch.Tensor, dtype: torch.dtype) -> torch.Tensor:
+    """Directions in ``dtype``, renormalised there when it is wider than theirs: a float32
+    unit vector's norm is 1 only to about 1e-7, which kappa would multiply."""
+    if dtype == u.dtype:
+        return u
+    return F.normalize(u.to(dtype), dim=-1)
+
+
+def _mm(a: torch.Tensor, b: torch.Tensor, out: torch.Tensor) -> torch.Tensor:
+    """a @ b.T into ``out``, computed in the inputs' dtype."""
+    if a.dtype == out.dtype:
+        return torch.mm(a, b.T, out=out)
+    return out.copy_(torch.mm(a, b.T))
 
 
 def kernel_block(
@@ -252,7 +294,7 @@ def kernel_block(
 
     Args:
         query_feats: (Q, 5) from PairTerms.query_features.
-        query_dirs: (Q, D) kappa-scaled query directions.
+        query_dirs: (Q, D) query directions from PairTerms.query_features.
         part_feats: (N, 5) particle position features.
         part_dirs: (N, D) particle directions.
         terms: kernel constants.
@@ -266,17 +308,20 @@ def kernel_block(
     q, n = query_feats.shape[0], part_feats.shape[0]
     pos = out[: q * n].view(q, n)
     ang = scratch[: q * n].view(q, n)
-    torch.mm(query_feats, part_feats.T, out=pos)
-    torch.mm(query_dirs, part_dirs.T, out=ang)
-    ang.abs_()
+    if query_dirs.dtype == ang.dtype:
+        torch.mm(query_dirs, part_dirs.T, out=ang)
+        ang.abs_().sub_(1.0).mul_(terms.kappa)
+    else:  # (|u . u_i| - 1) cancels: take it in float64 before kappa scales it
+        ang.copy_(torch.mm(query_dirs, part_dirs.T).abs_().sub_(1.0).mul_(terms.kappa))
+    _mm(query_feats, part_feats, pos)
     if terms.kernel == "gaussian":
         if cutoff is not None:
-            # pos = -d^2 / (2 s^2) - kappa; truncate d > cutoff * s to a value exp() sends to 0.
-            F.threshold_(pos, -0.5 * cutoff**2 - terms.kappa, -1e30)
+            # pos = -d^2 / (2 s^2); truncate d > cutoff * s to a value exp() sends to 0.
+            F.threshold_(pos, -0.5 * cutoff**2, -1e30)
         pos.add_(ang).clamp_(min=LOG_FLOOR).exp_()
         return pos
     # Triangular: pos holds d^2; the kernel is max(0, 1 - d / (2 s)).
     pos.clamp_(min=0.0).sqrt_().mul_(-0.5 / terms.sigma_t).add_(1.0)
     F.threshold_(pos, 1.0 - 0.5 * min(cutoff, 2.0) if cutoff is not None else 0.0, 0.0)
-    ang.sub_(terms.kappa).clamp_(min=LOG_FLOOR).exp_()
+    ang.clamp_(min=LOG_FLOOR).exp_()
     return pos.mul_(ang)

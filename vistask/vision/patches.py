@@ -32,6 +32,7 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from vistask.checks import check_at_least, check_positive
+from vistask.saving import load_state, save_state
 from vistask.vision.camera import Camera, backproject
 
 _LUMA = np.array([0.299, 0.587, 0.114], dtype=np.float32)
@@ -192,14 +193,13 @@ class Patches:
         )
 
     def save(self, path: str | Path) -> None:
-        """Save as a plain dict of CPU tensors."""
-        torch.save({k: v for k, v in self.to("cpu").__dict__.items()}, path)
+        """Save as a plain dict of CPU tensors (``vistask.saving``: atomic, checked on load)."""
+        save_state(path, "Patches", dict(self.to("cpu").__dict__))
 
     @classmethod
     def load(cls, path: str | Path, device: torch.device | str = "cpu") -> Patches:
         """Load what ``save`` wrote."""
-        state = torch.load(path, map_location=device, weights_only=True)
-        return cls(**state)
+        return cls(**load_state(path, "Patches")).to(device)
 
 
 def _gather(image: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
