@@ -67,6 +67,7 @@ class TabularQAgent(SB3Model):
         self.num_timesteps = 0
         self._seeded = False
         self.rng = np.random.default_rng(seed)
+        self._resume_env_rng: dict | None = None
 
     def learn(
         self,
@@ -75,35 +76,74 @@ class TabularQAgent(SB3Model):
         tb_log_name: str = "TabularQ",
         reset_num_timesteps: bool = True,
         progress_bar: bool = False,
+        checkpoint: str | Path | None = None,
+        checkpoint_every: int = 10_000,
     ) -> TabularQAgent:
         """Run Q-learning for ``total_timesteps`` environment steps; SB3 callbacks are called
         after every step (returning False stops); ``rollout/ep_rew`` is logged per episode.
+
+        With ``checkpoint``, the agent as it was when an episode began is written there every
+        ``checkpoint_every`` steps and when learning is interrupted (KeyboardInterrupt, or
+        SIGTERM turned into one by ``vistask.cli.interrupt_on_sigterm``), with the
+        random-generator states of the agent and the env. ``load(checkpoint, env)`` followed
+        by ``learn(total_timesteps - agent.num_timesteps, reset_num_timesteps=False)`` ends
+        with the Q table of an uninterrupted ``learn(total_timesteps)``, bit for bit, on an
+        env whose episodes depend only on its own generator and the actions.
         """
+        if not isinstance(total_timesteps, int | np.integer) or total_timesteps < 0:
+            raise ValueError(f"total_timesteps must be an integer >= 0, got {total_timesteps!r}")
+        if checkpoint_every < 1:
+            raise ValueError(f"checkpoint_every must be >= 1, got {checkpoint_every}")
         seeded = self._seeded  # the env is seeded once, at the agent's first step
         callback = self._start_learning(callback, tb_log_name, reset_num_timesteps)
         env, q = self.env, self.q
+        end = self.num_timesteps + total_timesteps
+        if self._resume_env_rng is not None:  # the episode a checkpoint stopped in, again
+            env.unwrapped.np_random.bit_generator.state = self._resume_env_rng
+            self._resume_env_rng = None
+        start = self._boundary() if checkpoint else None
+        saved_at = self.num_timesteps
         obs, _ = env.reset(seed=None if seeded else self.seed)
         self._seeded = True
         episode_reward = 0.0
-        for _ in tqdm(range(total_timesteps), disable=not progress_bar, desc="Q-learning"):
-            if self.rng.random() < self.epsilon:
-                action = int(self.rng.integers(q.shape[1]))
-            else:
-                action = self._greedy(obs)
-            next_obs, reward, terminated, truncated, _ = env.step(action)
-            target = reward + (0.0 if terminated else self.gamma * q[next_obs].max())
-            q[obs, action] += self.learning_rate * (target - q[obs, action])
-            self.num_timesteps += 1
-            obs, episode_reward = next_obs, episode_reward + float(reward)
-            if terminated or truncated:
-                self.logger.record("rollout/ep_rew", episode_reward)
-                self.logger.dump(step=self.num_timesteps)
-                obs, _ = env.reset()
-                episode_reward = 0.0
-            if not callback.on_step():
-                break
+        try:
+            for _ in tqdm(range(total_timesteps), disable=not progress_bar, desc="Q-learning"):
+                if self.rng.random() < self.epsilon:
+                    action = int(self.rng.integers(q.shape[1]))
+                else:
+                    action = self._greedy(obs)
+                next_obs, reward, terminated, truncated, _ = env.step(action)
+                target = reward + (0.0 if terminated else self.gamma * q[next_obs].max())
+                q[obs, action] += self.learning_rate * (target - q[obs, action])
+                self.num_timesteps += 1
+                obs, episode_reward = next_obs, episode_reward + float(reward)
+                if terminated or truncated:
+                    self.logger.record("rollout/ep_rew", episode_reward)
+                    self.logger.dump(step=self.num_timesteps)
+                    if checkpoint and self.num_timesteps < end:
+                        start = self._boundary()
+                        if self.num_timesteps - saved_at >= checkpoint_every:
+                            save_state(checkpoint, "TabularQAgent", start)
+                            saved_at = self.num_timesteps
+                    obs, _ = env.reset()
+                    episode_reward = 0.0
+                if not callback.on_step():
+                    break
+        except KeyboardInterrupt:
+            if checkpoint:
+                save_state(checkpoint, "TabularQAgent", start)
+            raise
         self._end_learning(callback)
         return self
+
+    def _boundary(self) -> dict:
+        """The agent's state between two episodes, the env's generator included."""
+        return {
+            **self._state(),
+            "q": torch.from_numpy(self.q.copy()),
+            "rng": self.rng.bit_generator.state,
+            "env_rng": self.env.unwrapped.np_random.bit_generator.state,
+        }
 
     def _greedy(self, state: int) -> int:
         row = self.q[state]
@@ -123,19 +163,20 @@ class TabularQAgent(SB3Model):
             actions[explore] = self.rng.integers(self.q.shape[1], size=int(explore.sum()))
         return (actions.reshape(states.shape), None)
 
+    def _state(self) -> dict:
+        return {
+            "q": torch.from_numpy(self.q),
+            "learning_rate": self.learning_rate,
+            "gamma": self.gamma,
+            "epsilon": self.epsilon,
+            "seed": self.seed,
+            "num_timesteps": self.num_timesteps,
+            "rng": self.rng.bit_generator.state,
+        }
+
     def save(self, path: str | Path) -> None:
-        save_state(
-            path,
-            "TabularQAgent",
-            {
-                "q": torch.from_numpy(self.q),
-                "learning_rate": self.learning_rate,
-                "gamma": self.gamma,
-                "epsilon": self.epsilon,
-                "seed": self.seed,
-                "num_timesteps": self.num_timesteps,
-            },
-        )
+        """Q, the settings, the step count and the random generator's state."""
+        save_state(path, "TabularQAgent", self._state())
 
     @classmethod
     def load(cls, path: str | Path, env: gym.Env | None = None) -> TabularQAgent:
@@ -157,4 +198,7 @@ class TabularQAgent(SB3Model):
             )
         agent.env, agent.q, agent.num_timesteps = env, q, state["num_timesteps"]
         agent._seeded = agent.num_timesteps > 0
+        if "rng" in state:
+            agent.rng.bit_generator.state = state["rng"]
+        agent._resume_env_rng = state.get("env_rng")  # set by learn's checkpoints
         return agent

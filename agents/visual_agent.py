@@ -102,6 +102,7 @@ class VisualAgent(SB3Model):
         self.timing = {"collect": 0.0, "extract": 0.0, "vocabulary": 0.0}
         self._next_seed = self.seed  # env copy i of the next database resets with this + i
         self._rng = np.random.default_rng(self.seed)  # predict(deterministic=False)
+        self._plan: dict | None = None  # what is left of the learn call a checkpoint stopped
 
     # -- what a subclass adds ---------------------------------------------------------------
     def _new_learner(self):
@@ -152,6 +153,7 @@ class VisualAgent(SB3Model):
         tb_log_name: str | None = None,
         reset_num_timesteps: bool = True,
         progress_bar: bool = False,
+        checkpoint: str | Path | None = None,
     ):
         """Collect ``total_timesteps`` interactions in ``databases`` databases and learn
         classes from them, continuing from what the agent has learned already.
@@ -164,6 +166,11 @@ class VisualAgent(SB3Model):
             reset_num_timesteps: count interactions from 0 and start a new TensorBoard run
                 (False: go on counting, in the same run).
             progress_bar: show progress bars of the stages.
+            checkpoint: a file to which the agent, its databases, its random generator and
+                what is left of this call are written after each database's stages.
+                ``load(checkpoint, env)`` then ``learn(total_timesteps -
+                agent.num_timesteps, reset_num_timesteps=False)`` goes on where the file left
+                off and ends as an uninterrupted call would, bit for bit on the CPU.
         """
         if not isinstance(total_timesteps, int | np.integer) or total_timesteps < self.databases:
             raise ValueError(
@@ -172,12 +179,16 @@ class VisualAgent(SB3Model):
             )
         name = tb_log_name or self.learner_class.__name__
         callback = self._start_learning(callback, name, reset_num_timesteps)
-        sizes = [total_timesteps // self.databases] * self.databases
-        sizes[0] += total_timesteps - sum(sizes)
-        stages_left = self.max_stages
-        for size in sizes:
+        plan, self._plan = self._plan, None
+        if plan is not None and not reset_num_timesteps and sum(plan["sizes"]) == total_timesteps:
+            sizes, stages_left = list(plan["sizes"]), plan["stages_left"]  # a checkpoint's call
+        else:
+            sizes = [total_timesteps // self.databases] * self.databases
+            sizes[0] += total_timesteps - sum(sizes)
+            stages_left = self.max_stages
+        while sizes:
             callback.on_rollout_start()
-            self._add_database(size)
+            self._add_database(sizes.pop(0))
             callback.on_rollout_end()
             stages_before = len(self.learner.history)
             stopped = False
@@ -192,6 +203,14 @@ class VisualAgent(SB3Model):
             stages_left -= len(self.learner.history) - stages_before
             if stopped or stages_left <= 0:
                 break
+            if checkpoint is not None and sizes:
+                state = self._state()
+                state["resume"] = {
+                    "database": self.database.state_dict(),
+                    "rng": self._rng.bit_generator.state,
+                    "plan": {"sizes": sizes, "stages_left": stages_left},
+                }
+                save_state(checkpoint, type(self).__name__, state)
         self._end_learning(callback)
         return self
 
@@ -306,35 +325,35 @@ class VisualAgent(SB3Model):
 
     # -- persistence ------------------------------------------------------------------------
     def save(self, path: str | Path) -> None:
-        """Save the vocabulary, the classes, Q and the settings (not the databases)."""
+        """Save the vocabulary, the classes, Q and the settings (not the databases: see
+        ``learn``'s ``checkpoint`` for files that learning goes on from)."""
         self._check_learned()
-        save_state(
-            path,
-            type(self).__name__,
-            {
-                "params": {
-                    "n_words": self.n_words,
-                    "databases": self.databases,
-                    "alpha": self.alpha,
-                    "min_count": self.min_count,
-                    "max_stages": self.max_stages,
-                    "epsilon": self.epsilon,
-                    "n_envs": self.n_envs,
-                    "max_keypoints": self.max_keypoints,
-                    "gamma": self.gamma,
-                    "seed": self.seed,
-                    **self._extra_params(),
-                },
-                "observation_shape": list(self.observation_space.shape),
-                "observation_dtype": str(self.observation_space.dtype),
-                "action_space": space_state(self.action_space),
-                "env_id": self.env_id,
-                "extractor": self.extractor.state_dict(),
-                "learner": self.learner.state_dict(),
-                "num_timesteps": self.num_timesteps,
-                "next_seed": self._next_seed,
+        save_state(path, type(self).__name__, self._state())
+
+    def _state(self) -> dict:
+        return {
+            "params": {
+                "n_words": self.n_words,
+                "databases": self.databases,
+                "alpha": self.alpha,
+                "min_count": self.min_count,
+                "max_stages": self.max_stages,
+                "epsilon": self.epsilon,
+                "n_envs": self.n_envs,
+                "max_keypoints": self.max_keypoints,
+                "gamma": self.gamma,
+                "seed": self.seed,
+                **self._extra_params(),
             },
-        )
+            "observation_shape": list(self.observation_space.shape),
+            "observation_dtype": str(self.observation_space.dtype),
+            "action_space": space_state(self.action_space),
+            "env_id": self.env_id,
+            "extractor": self.extractor.state_dict(),
+            "learner": self.learner.state_dict(),
+            "num_timesteps": self.num_timesteps,
+            "next_seed": self._next_seed,
+        }
 
     @classmethod
     def load(cls, path: str | Path, env: gym.Env | None = None, tensorboard_log: str | None = None):
@@ -357,6 +376,11 @@ class VisualAgent(SB3Model):
         if agent.learner.n_features != words:
             raise ValueError(f"{path}: its classes and vocabulary do not match (corrupt file)")
         agent.num_timesteps, agent._next_seed = state["num_timesteps"], state["next_seed"]
+        if "resume" in state:  # a checkpoint of learn: its databases and what is left to do
+            resume = state["resume"]
+            agent.database = InteractionDatabase.from_state_dict(resume["database"])
+            agent._rng.bit_generator.state = resume["rng"]
+            agent._plan = resume["plan"]
         if env is not None:
             agent.set_env(env)
         return agent

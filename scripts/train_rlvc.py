@@ -6,15 +6,17 @@ python scripts/train_rlvc.py --seed 3 --out runs/s3
 python scripts/train_rlvc.py --env-kwargs '{"layout_seed": 7}'   # another maze layout
 python scripts/train_rlvc.py --env vistask/VisualMountainCar-v0 --compounds   # paper Figs. 6-7
 python scripts/train_rlvc.py --env vistask/VisualMazeContinuous-v0   # RLJC, paper Fig. 10
+python scripts/train_rlvc.py --resume runs/s3      # go on after a stop (Ctrl-C, kill)
 """
 
 import argparse
 import json
+from pathlib import Path
 
 import gymnasium as gym
 
 import vistask.envs  # noqa: F401  (registers the environments)
-from vistask.cli import positive_int
+from vistask.cli import interrupt_on_sigterm, positive_int
 from vistask.experiments.train_rljc import train_rljc
 from vistask.experiments.train_rlvc import train_rlvc
 
@@ -36,12 +38,27 @@ def main() -> None:
         "--out", default=None, help="default runs/train_rlvc-<time> (RLJC: train_rljc-<time>)"
     )
     parser.add_argument("--compounds", action="store_true", help="let RLVC make compound features")
+    parser.add_argument(
+        "--resume",
+        type=Path,
+        default=None,
+        help="a stopped run's folder: go on with its settings from its last checkpoint",
+    )
     parser.add_argument("--no-progress", action="store_true")
     args = parser.parse_args()
     run = dict(env_id=args.env, env_kwargs=args.env_kwargs, seed=args.seed, out=args.out)
     run["progress"] = not args.no_progress
     if args.interactions is not None:
         run["interactions"] = args.interactions
+    if args.resume is not None:
+        settings = args.resume / "settings.json"
+        if not settings.is_file():
+            parser.error(f"argument --resume: {args.resume} holds no stopped run")
+        saved = json.loads(settings.read_text())
+        args.compounds = saved.pop("compounds", False)
+        run = {**saved, "out": args.resume, "progress": run["progress"]}
+        args.env, args.env_kwargs = saved["env_id"], saved["env_kwargs"]
+    interrupt_on_sigterm()
     env = gym.make(args.env, **args.env_kwargs)
     env.close()
     if isinstance(env.action_space, gym.spaces.Box):

@@ -71,3 +71,158 @@ def test_grasp_learning_stopped_after_a_cycle_resumes_bit_for_bit(tmp_path, monk
             candidates=2,
         ).run(tmp_path / "stopped")
     assert json.loads((tmp_path / "stopped" / "config.json").read_text())["cycles"] == 3
+
+
+def _frozen_lake():
+    import gymnasium as gym
+
+    return gym.make("FrozenLake-v1")  # slippery: the env's own generator matters
+
+
+def test_tabular_q_interrupted_and_resumed_ends_as_a_straight_run(tmp_path):
+    import numpy as np
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    from vistask.agents import TabularQAgent
+
+    straight = TabularQAgent(_frozen_lake(), seed=3).learn(20_000)
+
+    class Interrupt(BaseCallback):
+        def _on_step(self) -> bool:
+            if self.num_timesteps == 12_345:
+                raise KeyboardInterrupt
+            return True
+
+    path = tmp_path / "q.pt"
+    stopped = TabularQAgent(_frozen_lake(), seed=3)
+    with pytest.raises(KeyboardInterrupt):
+        stopped.learn(20_000, callback=Interrupt(), checkpoint=path, checkpoint_every=5_000)
+    resumed = TabularQAgent.load(path, _frozen_lake())  # a fresh env, as after a crash
+    assert 0 < resumed.num_timesteps <= 12_345
+    resumed.learn(20_000 - resumed.num_timesteps, reset_num_timesteps=False)
+    assert np.array_equal(resumed.q, straight.q) and resumed.num_timesteps == 20_000
+    (tmp_path / "cut.pt").write_bytes(path.read_bytes()[:300])
+    with pytest.raises(ValueError, match="truncated"):
+        TabularQAgent.load(tmp_path / "cut.pt")
+
+
+@pytest.mark.slow
+def test_tabular_q_stopped_by_sigterm_resumes_as_a_straight_run(tmp_path):
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    import numpy as np
+
+    from vistask.agents import TabularQAgent
+
+    path, total = tmp_path / "q.pt", 400_000
+    child = subprocess.Popen(
+        [
+            sys.executable,
+            "-c",
+            "import gymnasium as gym, sys\n"
+            "from vistask.agents import TabularQAgent\n"
+            "from vistask.cli import interrupt_on_sigterm\n"
+            "interrupt_on_sigterm()\n"
+            "TabularQAgent(gym.make('FrozenLake-v1'), seed=3).learn("
+            f"{total}, checkpoint=sys.argv[1], checkpoint_every=20_000)\n",
+            str(path),
+        ],
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    while not path.exists() and child.poll() is None:
+        time.sleep(0.05)
+    child.send_signal(signal.SIGTERM)
+    _, err = child.communicate(timeout=120)
+    assert child.returncode != 0 and "KeyboardInterrupt" in err  # stopped, not finished
+    resumed = TabularQAgent.load(path, _frozen_lake())
+    assert resumed.num_timesteps < total
+    resumed.learn(total - resumed.num_timesteps, reset_num_timesteps=False)
+    straight = TabularQAgent(_frozen_lake(), seed=3).learn(total)
+    assert np.array_equal(resumed.q, straight.q)
+
+
+@pytest.mark.parametrize("agent_name", ["RLVCAgent", "RLJCAgent"])
+def test_a_visual_agent_resumes_from_its_checkpoint_as_a_straight_run(agent_name, tmp_path):
+    import gymnasium as gym
+    import numpy as np
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    import vistask.agents as agents
+    import vistask.envs  # noqa: F401
+
+    cls = getattr(agents, agent_name)
+    env_id = (
+        "vistask/VisualMaze-v0" if agent_name == "RLVCAgent" else "vistask/VisualMazeContinuous-v0"
+    )
+    small = {"obstacles": ((0.45, 0.0, 0.55, 0.6),), "exits": ((0.8, 0.0, 1.0, 0.2),), "step": 0.2}
+
+    def make():
+        return cls(gym.make(env_id, **small), n_words=256, n_envs=16, seed=4)
+
+    straight = make().learn(3000)
+
+    class StopInTheLastDatabase(BaseCallback):
+        def _on_step(self) -> bool:
+            if self.model.num_timesteps == 3000:
+                raise KeyboardInterrupt
+            return True
+
+    path = tmp_path / "agent.pt"
+    with pytest.raises(KeyboardInterrupt):
+        make().learn(3000, callback=StopInTheLastDatabase(), checkpoint=path)
+    resumed = cls.load(path, gym.make(env_id, **small))
+    assert resumed.num_timesteps == 2000 and len(resumed.database) == 2000
+    resumed.learn(3000 - resumed.num_timesteps, reset_num_timesteps=False)
+    assert resumed.num_timesteps == 3000
+    a, b = straight.learner.state_dict(), resumed.learner.state_dict()
+    assert len(a["history"]) == len(b["history"])
+    images = np.stack(
+        [straight.env.unwrapped.percept_at(p) for p in np.random.default_rng(0).random((64, 2))]
+    )
+    assert np.array_equal(straight.predict(images)[0], resumed.predict(images)[0])
+    assert torch.equal(straight.database.presence, resumed.database.presence)
+
+
+@pytest.mark.slow
+def test_train_rlvc_stopped_by_sigterm_resumes_with_the_results_of_a_straight_run(tmp_path):
+    import signal
+    import subprocess
+    import sys
+    import time
+    from pathlib import Path
+
+    script = str(Path(__file__).resolve().parents[1] / "scripts" / "train_rlvc.py")
+    small = '{"obstacles": [[0.45, 0.0, 0.55, 0.6]], "exits": [[0.8, 0.0, 1.0, 0.2]], "step": 0.2}'
+    args = ["--interactions", "6000", "--env-kwargs", small, "--no-progress", "--seed", "2"]
+    straight = tmp_path / "straight"
+    subprocess.run(
+        [sys.executable, script, *args, "--out", str(straight)], check=True, capture_output=True
+    )
+
+    stopped = tmp_path / "stopped"
+    child = subprocess.Popen(
+        [sys.executable, script, *args, "--out", str(stopped)],
+        stderr=subprocess.PIPE,
+        stdout=subprocess.DEVNULL,
+        text=True,
+    )
+    while not (stopped / "checkpoint.pt").exists() and child.poll() is None:
+        time.sleep(0.05)
+    child.send_signal(signal.SIGTERM)
+    _, err = child.communicate(timeout=300)
+    assert child.returncode != 0 and "KeyboardInterrupt" in err
+    assert not (stopped / "summary.json").exists()
+    subprocess.run(
+        [sys.executable, script, "--resume", str(stopped), "--no-progress"],
+        check=True,
+        capture_output=True,
+    )
+    a = json.loads((straight / "summary.json").read_text())
+    b = json.loads((stopped / "summary.json").read_text())
+    for key in ("rlvc_return", "stages", "classes", "selected_features", "interactions"):
+        assert a[key] == b[key], key
+    assert not (stopped / "checkpoint.pt").exists()

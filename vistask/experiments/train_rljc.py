@@ -23,8 +23,8 @@ import vistask.envs  # noqa: F401  (registers the environments)
 from vistask.agents import RLJCAgent, RLVCAgent
 from vistask.envs.maze_plots import percept_grid, plot_directions
 from vistask.experiments.tasks import MazeTask
-from vistask.experiments.train_rlvc import EvaluateEvery, Scorer, agent_policy
-from vistask.runs import print_table, run_dir, write_summary
+from vistask.experiments.train_rlvc import EvaluateEvery, Scorer, agent_policy, learn_resumable
+from vistask.runs import check_same_settings, print_table, run_dir, write_summary
 
 DISCRETE_MAZE = "vistask/VisualMaze-v0"  # the four-action twin of the continuous maze
 
@@ -101,7 +101,8 @@ def train_rljc(
             ``Box`` action space.
         interactions: interactions in all (the agent's ``databases`` share them).
         seed: seeds the agents.
-        out: run directory (default ``runs/train_rljc-<time>``).
+        out: run directory (default ``runs/train_rljc-<time>``); one that a stopped run
+            left goes on from its checkpoint, with the same settings.
         progress: show progress bars.
         pictures: draw the directions and the joint classes (the maze).
 
@@ -110,11 +111,13 @@ def train_rljc(
     """
     start = time.perf_counter()
     out = run_dir("train_rljc", out)
+    settings = {"env_id": env_id, "env_kwargs": env_kwargs or {}, "interactions": interactions}
+    check_same_settings(out / "settings.json", {**settings, "seed": seed})
     env = gym.make(env_id, **(env_kwargs or {}))
     scorer = Scorer(env_id, env_kwargs)
     agent = RLJCAgent(env, seed=seed, tensorboard_log=out / "tensorboard")
     evaluations = EvaluateEvery(scorer)
-    agent.learn(interactions, callback=evaluations, progress_bar=progress)
+    agent = learn_resumable(agent, interactions, out, evaluations, progress)
     learned = time.perf_counter()
     final_return = scorer(agent)
     agent.save(out / "rljc_agent.pt")

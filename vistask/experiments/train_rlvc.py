@@ -31,7 +31,7 @@ from vistask.experiments.tasks import CarTask, MazeTask, Task, task_for
 from vistask.features import draw_compound
 from vistask.rlvc import InteractionDatabase, Transitions
 from vistask.rlvc.solver import estimate_mdp, value_iteration
-from vistask.runs import print_table, run_dir, write_summary
+from vistask.runs import check_same_settings, print_table, run_dir, write_summary
 
 PAPER = {"stages": 84, "classes": 205, "selected_features": 200, "vocabulary_size": 2298}
 EVAL_EVERY = 50  # stages between evaluations logged while learning
@@ -214,6 +214,23 @@ def velocity_readability(agent: RLVCAgent) -> dict:
     }
 
 
+def learn_resumable(
+    agent: VisualAgent, interactions: int, out: Path, callback, progress: bool
+) -> VisualAgent:
+    """``agent.learn(interactions)`` with a checkpoint in ``out/checkpoint.pt`` after each
+    database; when a stopped run left one there, go on from it instead (the same result as a
+    run straight through). The checkpoint is removed once learning ends."""
+    checkpoint = out / "checkpoint.pt"
+    if checkpoint.exists():
+        agent = type(agent).load(checkpoint, agent.env, tensorboard_log=agent.tensorboard_log)
+        interactions, reset = interactions - agent.num_timesteps, False
+    else:
+        reset = True
+    agent.learn(interactions, callback, None, reset, progress, checkpoint=checkpoint)
+    checkpoint.unlink(missing_ok=True)
+    return agent
+
+
 def train_rlvc(
     env_id: str = "vistask/VisualMaze-v0",
     env_kwargs: dict | None = None,
@@ -232,7 +249,8 @@ def train_rlvc(
             actions.
         interactions: interactions in all (the agent's ``databases`` share them).
         seed: seeds the agent.
-        out: run directory (default ``runs/train_rlvc-<time>``).
+        out: run directory (default ``runs/train_rlvc-<time>``); one that a stopped run
+            left goes on from its checkpoint (``learn_resumable``), with the same settings.
         progress: show progress bars.
         pictures: draw values and policies (the maze, the car).
         compounds: let the agent make compound features (``RLVCAgent``'s ``compounds``).
@@ -242,11 +260,13 @@ def train_rlvc(
     """
     start = time.perf_counter()
     out = run_dir("train_rlvc", out)
+    settings = {"env_id": env_id, "env_kwargs": env_kwargs or {}, "interactions": interactions}
+    check_same_settings(out / "settings.json", {**settings, "seed": seed, "compounds": compounds})
     env = gym.make(env_id, **(env_kwargs or {}))
     scorer = Scorer(env_id, env_kwargs)
     agent = RLVCAgent(env, compounds=compounds, seed=seed, tensorboard_log=out / "tensorboard")
     evaluations = EvaluateEvery(scorer)
-    agent.learn(interactions, callback=evaluations, progress_bar=progress)
+    agent = learn_resumable(agent, interactions, out, evaluations, progress)
     learned = time.perf_counter()
     final_return = scorer(agent)
     agent.save(out / "rlvc_agent.pt")

@@ -301,6 +301,49 @@ class InteractionDatabase:
             else None,
         )
 
+    def state_dict(self) -> dict:
+        """Plain tensors for a checkpoint; presence as its (2, nnz) nonzero indices (a percept
+        shows a few dozen of thousands of features)."""
+        rows, cols = self.presence.nonzero(as_tuple=True)
+        occ = self.occurrences
+        return {
+            "presence_shape": list(self.presence.shape),
+            "present": torch.stack([rows, cols]).int(),
+            **{k: getattr(self, k) for k in ("obs", "actions", "rewards", "next_obs", "terminal")},
+            "positions": None if self.positions is None else torch.from_numpy(self.positions),
+            "occurrences": None
+            if occ is None
+            else {
+                **{
+                    k: torch.from_numpy(getattr(occ, k))
+                    for k in ("image", "feature", "xy", "scale", "part")
+                },
+                "n_images": occ.n_images,
+            },
+        }
+
+    @classmethod
+    def from_state_dict(cls, state: dict) -> InteractionDatabase:
+        """The database of ``state_dict()``."""
+        presence = torch.zeros(state["presence_shape"], dtype=torch.bool)
+        presence[state["present"][0].long(), state["present"][1].long()] = True
+        occ = state["occurrences"]
+        return cls(
+            presence=presence,
+            **{k: state[k] for k in ("obs", "actions", "rewards", "next_obs", "terminal")},
+            positions=None if state["positions"] is None else state["positions"].numpy(),
+            occurrences=None
+            if occ is None
+            else Occurrences(
+                occ["image"].numpy(),
+                occ["feature"].numpy(),
+                occ["xy"].numpy(),
+                occ["scale"].numpy(),
+                occ["n_images"],
+                occ["part"].numpy(),
+            ),
+        )
+
     def add_compounds(self, compounds: list[Compound]) -> None:
         """Add compound features as the next feature ids (their occurrences and presence)."""
         if self.occurrences is None:
