@@ -226,3 +226,40 @@ def test_train_rlvc_stopped_by_sigterm_resumes_with_the_results_of_a_straight_ru
     for key in ("rlvc_return", "stages", "classes", "selected_features", "interactions"):
         assert a[key] == b[key], key
     assert not (stopped / "checkpoint.pt").exists()
+
+
+@pytest.mark.slow
+def test_learn_grasps_stopped_by_sigterm_resumes_with_the_results_of_a_straight_run(tmp_path):
+    pytest.importorskip("robosuite")
+    import signal
+    import subprocess
+    import sys
+    import time
+    from pathlib import Path
+
+    script = str(Path(__file__).resolve().parents[1] / "scripts" / "learn_grasps.py")
+    args = ["--objects", "cube", "--hypothesis", "demo", "--cycles", "3", "--trials-per-cycle", "4"]
+    args += ["--eval-trials", "2", "--num-envs", "1", "--candidates", "2"]
+    straight, stopped = tmp_path / "straight", tmp_path / "stopped"
+    subprocess.run(
+        [sys.executable, script, *args, "--out", str(straight)], check=True, capture_output=True
+    )
+    child = subprocess.Popen(
+        [sys.executable, script, *args, "--out", str(stopped)],
+        stderr=subprocess.PIPE,
+        stdout=subprocess.DEVNULL,
+        text=True,
+    )
+    while not (stopped / "cube" / "checkpoint.pt").exists() and child.poll() is None:
+        time.sleep(0.05)
+    child.send_signal(signal.SIGTERM)
+    _, err = child.communicate(timeout=300)
+    assert child.returncode != 0 and "KeyboardInterrupt" in err
+    subprocess.run(
+        [sys.executable, script, "--resume", str(stopped)], check=True, capture_output=True
+    )
+    a = json.loads((straight / "summary.json").read_text())["objects"]["cube"]
+    b = json.loads((stopped / "summary.json").read_text())["objects"]["cube"]
+    for key in ("hypothesis_success", "empirical_success", "empirical_best_of_k_success", "trials"):
+        assert a[key] == b[key], key
+    assert [c["successes"] for c in a["cycles"]] == [c["successes"] for c in b["cycles"]]

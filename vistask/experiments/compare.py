@@ -8,8 +8,10 @@ Every method is scored at every budget B (environment interactions) by its task'
 the mean discounted return from the same fixed starts with the same noise. RLVC
 (and RLJC) learns from one fixed database, so its checkpoint at B is a fresh agent learned on B
 interactions; the other learners train once per seed and are evaluated when they pass B.
-Curves are aggregated over seeds with the interquartile mean (IQM) and percentile-bootstrap
-confidence intervals.
+These independent runs go to Ray (``vistask.parallel``) and each lands in ``runs.jsonl`` as it
+ends, so that a stopped comparison resumes. Curves are aggregated over seeds with rliable
+(``statistics.py``): interquartile mean (IQM) with stratified-bootstrap confidence intervals,
+performance profiles and probabilities of improvement.
 """
 
 from __future__ import annotations
