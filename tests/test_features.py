@@ -85,6 +85,15 @@ def test_repeated_percepts_are_extracted_once_and_give_the_same_features(extract
     assert copy._cache == {} and torch.equal(copy.presence(percepts[:3]), fresh[:3])
 
 
+def test_a_batch_that_fills_the_cache_keeps_its_cached_percepts(extractor, percepts):
+    fresh = extractor.presence_of(extractor.keypoints.batch(percepts[:30]))
+    small = VisualFeatureExtractor(extractor.keypoints, extractor.centroids, cache_size=20)
+    small.presence(percepts[:15])  # cached
+    # 15 cached and 15 new percepts overflow the cache of 20: the cached ones still count.
+    assert torch.equal(small.presence(percepts[:30]), fresh)
+    assert torch.equal(small.presence(percepts[:30]), fresh)
+
+
 def test_presence_is_a_bool_matrix_over_the_vocabulary(extractor, percepts):
     presence = extractor.presence(percepts)
     assert presence.shape == (len(percepts), 256) and presence.dtype == torch.bool

@@ -339,12 +339,12 @@ class VisualFeatureExtractor:
         if todo:
             detected = self.keypoints.batch([images[i] for i in todo.values()])
             found = dict(zip(todo, self._per_image(detected), strict=True))
+        rows = [found[key] if key in found else self._cache[key] for key in keys]
+        if found and self.cache_size:  # after the lookup: a full cache is emptied below
             if len(self._cache) + len(found) > self.cache_size:
                 self._cache.clear()  # simpler than LRU, and rare: the cache holds 100k views
-            if self.cache_size:
-                self._cache.update(found)
-        words = self._table([found[key] if key in found else self._cache[key] for key in keys])
-        return add_compound_occurrences(words, list(compounds), self.n_features)
+            self._cache.update(found)
+        return add_compound_occurrences(self._table(rows), list(compounds), self.n_features)
 
     def presence_of(
         self, detected: Sequence[Keypoints], compounds: Sequence[Compound] = ()
