@@ -140,8 +140,7 @@ class TabularQAgent(SB3Model):
         """The agent's state between two episodes, the env's generator included."""
         return {
             **self._state(),
-            "q": torch.from_numpy(self.q.copy()),
-            "rng": self.rng.bit_generator.state,
+            "q": torch.from_numpy(self.q.copy()),  # learning goes on in place
             "env_rng": self.env.unwrapped.np_random.bit_generator.state,
         }
 

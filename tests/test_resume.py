@@ -17,15 +17,9 @@ def test_grasp_learning_stopped_after_a_cycle_resumes_bit_for_bit(tmp_path, monk
     from vistask.experiments.grasps import GraspExperiment
     from vistask.grasp import GraspLearner
 
-    experiment = GraspExperiment(
-        objects=("cube",),
-        hypothesis="demo",
-        cycles=3,
-        trials_per_cycle=3,
-        eval_trials=2,
-        num_envs=1,
-        candidates=2,
-    )
+    tiny = {"objects": ("cube",), "hypothesis": "demo", "cycles": 3, "trials_per_cycle": 3}
+    tiny |= {"eval_trials": 2, "num_envs": 1, "candidates": 2}
+    experiment = GraspExperiment(**tiny)
     straight = experiment.run(tmp_path / "straight")
 
     run_cycle, calls = GraspLearner.run_cycle, []
@@ -61,15 +55,7 @@ def test_grasp_learning_stopped_after_a_cycle_resumes_bit_for_bit(tmp_path, monk
         assert resumed["objects"]["cube"][key] == straight["objects"]["cube"][key]
     # Other settings in the same folder are refused rather than mixed in.
     with pytest.raises(ValueError, match=r"other settings \(cycles\)"):
-        GraspExperiment(
-            objects=("cube",),
-            hypothesis="demo",
-            cycles=2,
-            trials_per_cycle=3,
-            eval_trials=2,
-            num_envs=1,
-            candidates=2,
-        ).run(tmp_path / "stopped")
+        GraspExperiment(**{**tiny, "cycles": 2}).run(tmp_path / "stopped")
     assert json.loads((tmp_path / "stopped" / "config.json").read_text())["cycles"] == 3
 
 
