@@ -15,13 +15,18 @@ from __future__ import annotations
 
 import argparse
 import inspect
-import json
 import os
 from pathlib import Path
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
-from vistask.cli import interrupt_on_sigterm, non_negative_float, non_negative_int, positive_int
+from vistask.cli import (
+    interrupt_on_sigterm,
+    non_negative_float,
+    non_negative_int,
+    positive_int,
+    stopped_run_settings,
+)
 from vistask.experiments.grasps import (
     HYPOTHESES,
     GraspExperiment,
@@ -88,11 +93,9 @@ def main() -> None:
         args.cycles, args.trials_per_cycle, args.eval_trials = 2, 10, 10
     where = {"num_envs": args.num_envs, "address": args.address}
     if args.resume is not None:
-        settings = args.resume / "config.json"
-        if not settings.is_file():
-            parser.error(f"argument --resume: {args.resume} holds no stopped run (no config.json)")
         out = args.resume
-        experiment = GraspExperiment(**json.loads(settings.read_text()), **where)
+        settings = stopped_run_settings(parser, out, "config.json")
+        experiment = GraspExperiment(**settings, **where)
     else:
         out = run_dir("learn_grasps", args.out)
         experiment = GraspExperiment(

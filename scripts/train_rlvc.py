@@ -16,7 +16,7 @@ from pathlib import Path
 import gymnasium as gym
 
 import vistask.envs  # noqa: F401  (registers the environments)
-from vistask.cli import interrupt_on_sigterm, positive_int
+from vistask.cli import interrupt_on_sigterm, positive_int, stopped_run_settings
 from vistask.experiments.train_rljc import train_rljc
 from vistask.experiments.train_rlvc import train_rlvc
 
@@ -51,10 +51,7 @@ def main() -> None:
     if args.interactions is not None:
         run["interactions"] = args.interactions
     if args.resume is not None:
-        settings = args.resume / "settings.json"
-        if not settings.is_file():
-            parser.error(f"argument --resume: {args.resume} holds no stopped run")
-        saved = json.loads(settings.read_text())
+        saved = stopped_run_settings(parser, args.resume, "settings.json")
         args.compounds = saved.pop("compounds", False)
         run = {**saved, "out": args.resume, "progress": run["progress"]}
         args.env, args.env_kwargs = saved["env_id"], saved["env_kwargs"]

@@ -4,9 +4,11 @@ before any work starts."""
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import signal
 from collections.abc import Callable
+from pathlib import Path
 
 
 def _checked(text: str, convert: Callable[[str], float], ok: Callable, accepted: str):
@@ -45,3 +47,12 @@ def interrupt_on_sigterm() -> None:
         raise KeyboardInterrupt(f"signal {signum}")
 
     signal.signal(signal.SIGTERM, interrupt)
+
+
+def stopped_run_settings(parser: argparse.ArgumentParser, folder: Path, name: str) -> dict:
+    """The settings a stopped run wrote to ``folder/name``, for ``--resume folder``; argparse's
+    own error when the folder holds no stopped run."""
+    path = Path(folder) / name
+    if not path.is_file():
+        parser.error(f"argument --resume: {folder} holds no stopped run (no {name})")
+    return json.loads(path.read_text())
