@@ -3,8 +3,9 @@
 Importing this package registers ``vistask/VisualMaze-v0``, its continuous-action variant
 ``vistask/VisualMazeContinuous-v0`` (the move's angle in radians), ``vistask/VisualMountainCar-v0``,
 ``vistask/PlaceNavigation-v0`` and ``vistask/GraspTrial-v0``.
-Robosuite-based modules (``scene``, ``tabletop``, ``grasp_trial``) are imported only when
-used: importing robosuite takes seconds. ``place_navigation`` imports MuJoCo and sets
+Robosuite-based modules (``objects``: objects named by robosuite class or MJCF file;
+``scene``, ``tabletop``, ``grasp_trial``) are imported only when used: importing robosuite
+takes seconds. ``place_navigation`` imports MuJoCo and sets
 MUJOCO_GL=egl when unset, for offscreen rendering without a display.
 """
 

@@ -22,7 +22,6 @@ import mujoco
 import numpy as np
 import roma
 import torch
-from robosuite.models.arenas import TableArena
 
 from vistask.vision import Camera, RGBDView, depth_buffer_to_metres, intrinsics_from_fovy, look_at
 
@@ -85,17 +84,24 @@ CAMERAS: dict[str, CameraSpec] = {
         _ring("back", 180.0),
         _ring("right", 270.0),
         CameraSpec("top", (0.0, 0.0, TABLE_TOP_Z + 0.65), up=(1.0, 0.0, 0.0)),
+        # Test viewpoints: object models are learned from the five above, never from these.
+        _ring("front_left_low", 35.0, distance=0.65, elevation_deg=30.0),
+        _ring("back_right_high", 215.0, distance=0.55, elevation_deg=60.0),
     )
 }
+LEARNING_CAMERAS = ("front", "left", "back", "right", "top")
+TEST_CAMERAS = ("front_left_low", "back_right_high")
 ROBOSUITE_CAMERAS = ("frontview", "birdview", "agentview", "sideview")
 
 
-def table_arena() -> TableArena:
+def table_arena():
     """robosuite's table arena with the table top at ``TABLE_TOP_Z`` over the world origin."""
+    from robosuite.models.arenas import TableArena  # importing robosuite takes seconds
+
     return TableArena(table_full_size=TABLE_SIZE, table_offset=TABLE_CENTRE)
 
 
-def add_cameras(arena: TableArena, specs: Iterable[CameraSpec]) -> None:
+def add_cameras(arena, specs: Iterable[CameraSpec]) -> None:
     """Add fixed cameras to a robosuite arena (before its model is compiled)."""
     for spec in specs:
         cv = look_at(torch.tensor(spec.eye), torch.tensor(spec.target), torch.tensor(spec.up))
@@ -137,6 +143,11 @@ def render_view(
     """
     m, d = sim.model._model, sim.data._data
     camera = sim_camera(m, d, name, height, width)
+    # robosuite renders into whichever GL context is current; with several simulations in
+    # one process (a tabletop world and a robot, or two worlds) that may be another's.
+    context = sim._render_context_offscreen
+    if context is not None:
+        context.gl_ctx.make_current()
     rgb, buffer = sim.render(width=width, height=height, camera_name=name, depth=True)
     seg = sim.render(width=width, height=height, camera_name=name, segmentation=True)
     label_of_body = np.full(m.nbody, -1, dtype=np.int64)

@@ -3,9 +3,11 @@
 A scene is a robosuite ``TableArena`` with a target object at a random pose (x, y, yaw;
 optionally tipped onto a side) plus 0-4 distractors of other kinds, settled by the physics,
 then rendered by one or more cameras as RGB, depth (metres) and instance segmentation.
+Objects are named as ``vistask.envs.objects`` resolves them (robosuite classes, presets,
+MJCF files).
 
 No robot: pose estimation needs none, and an arm would only occlude the table. One MuJoCo
-model holds one instance of every object kind and is reused across scenes (compiling a
+model holds one instance of each object kind it may show and is reused across scenes (compiling a
 model and creating a GL context cost about 0.5 s); objects a scene does not use are parked
 out of sight with collisions and gravity off.
 
@@ -26,30 +28,33 @@ import functools
 import math
 import os
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
 import mujoco
 import numpy as np
-import roma
 import torch
-from robosuite.models.objects import (
-    BoxObject,
-    BreadObject,
-    CanObject,
-    CerealObject,
-    HammerObject,
-    MilkObject,
-    MujocoObject,
-)
 from robosuite.models.tasks import ManipulationTask
 from robosuite.utils.binding_utils import MjRenderContextOffscreen, MjSim
 from torch import Tensor
 
+from vistask.envs.objects import (
+    DEFAULT_DISTRACTORS,
+    ObjectSpec,
+    drop_pose,
+    footprint_radius,
+    object_spec,
+    place_apart,
+    place_occluders,
+    rest_rotation,
+    yaw_rotation,
+)
 from vistask.envs.scene import (
     CAMERAS,
+    LEARNING_CAMERAS,
+    TABLE_CENTRE,
     TABLE_TOP_Z,
     CameraSpec,
     add_cameras,
@@ -71,63 +76,9 @@ from vistask.vision import (
 )
 
 
-@dataclass(frozen=True)
-class ObjectSpec:
-    """An object kind.
-
-    Attributes:
-        make: builds the robosuite object given its name.
-        symmetry: rotational symmetry of its shape, in its body frame.
-        rest: (4,) XYZW rotation that stands it in its natural rest pose on the table.
-        can_tip: whether "tipped" scenes may lay it on a side (not round objects that roll).
-    """
-
-    make: Callable[[str], MujocoObject]
-    symmetry: Symmetry
-    rest: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 1.0)
-    can_tip: bool = True
-
-
-def _hammer(name: str) -> MujocoObject:
-    # Fixed sizes and a seeded generator: HammerObject samples its geometry at random.
-    return HammerObject(
-        name,
-        handle_radius=0.016,
-        handle_length=0.16,
-        handle_density=150.0,
-        handle_friction=4.0,
-        rng=np.random.default_rng(0),
-    )
-
-
-def _box(name: str) -> MujocoObject:
-    return BoxObject(name, size=(0.045, 0.03, 0.02), rgba=(0.15, 0.45, 0.8, 1.0))
-
-
-OBJECTS: dict[str, ObjectSpec] = {
-    # Shape symmetries; textures (can label, cereal print) are ignored, as in the paper's
-    # error measure.
-    "can": ObjectSpec(CanObject, Symmetry.about_axis((0.0, 0.0, 1.0)), can_tip=False),
-    "box": ObjectSpec(_box, Symmetry.box()),
-    # Milk carton and cereal box render identically after half a turn about z (same print
-    # front and back; checked on rendered images), so no method can tell those poses apart.
-    "milk": ObjectSpec(MilkObject, Symmetry.about_axis((0.0, 0.0, 1.0), order=2)),
-    "cereal": ObjectSpec(CerealObject, Symmetry.box()),
-    "bread": ObjectSpec(BreadObject, Symmetry.none()),
-    # robosuite builds the hammer standing on its handle; this lays it flat.
-    "hammer": ObjectSpec(_hammer, Symmetry.none(), rest=(0.5, -0.5, 0.5, -0.5), can_tip=False),
-}
-
-
 def object_symmetry(kind: str) -> Symmetry:
-    """The shape symmetry of an object kind (see ``OBJECTS``)."""
-    return _spec(kind).symmetry
-
-
-def _spec(kind: str) -> ObjectSpec:
-    if kind not in OBJECTS:
-        raise ValueError(f"unknown object {kind!r}; known: {sorted(OBJECTS)}")
-    return OBJECTS[kind]
+    """The shape symmetry of an object kind (``vistask.envs.objects.object_spec``)."""
+    return object_spec(kind).symmetry
 
 
 @dataclass
@@ -140,6 +91,7 @@ class Scene:
         poses: (M, 7) world poses after settling.
         bounds: (M, 2, 3) object-frame axis-aligned bounding boxes (min corner, max corner).
         views: camera name -> view; segmentation labels index ``objects``, -1 elsewhere.
+        symmetries: M shape symmetries.
     """
 
     seed: int
@@ -147,6 +99,7 @@ class Scene:
     poses: Tensor
     bounds: Tensor
     views: dict[str, RGBDView]
+    symmetries: list[Symmetry]
 
     @property
     def target(self) -> str:
@@ -159,21 +112,26 @@ class Scene:
 
     def symmetry(self, index: int = 0) -> Symmetry:
         """Shape symmetry of object ``index``."""
-        return object_symmetry(self.objects[index])
+        return self.symmetries[index]
 
 
 class TabletopWorld:
-    """One MuJoCo model with a table, one instance of every object kind, and cameras.
+    """One MuJoCo model with a table, one instance of each object kind, and cameras.
 
     Args:
+        kinds: the objects scenes may hold (names for ``vistask.envs.objects.object_spec``).
         extra_cameras: cameras added to ``CAMERAS`` and robosuite's four.
     """
 
-    def __init__(self, extra_cameras: Sequence[CameraSpec] = ()) -> None:
+    def __init__(
+        self, kinds: Sequence[str] = DEFAULT_DISTRACTORS, extra_cameras: Sequence[CameraSpec] = ()
+    ) -> None:
+        specs = [object_spec(k) for k in dict.fromkeys(kinds)]
+        self.specs: dict[str, ObjectSpec] = {spec.name: spec for spec in specs}
+        self.kinds = list(self.specs)
         arena = table_arena()
         add_cameras(arena, (*CAMERAS.values(), *extra_cameras))
-        self.kinds = list(OBJECTS)
-        objects = [OBJECTS[k].make(k) for k in self.kinds]
+        objects = [spec.make(spec.name) for spec in specs]
         task = ManipulationTask(mujoco_arena=arena, mujoco_robots=[], mujoco_objects=objects)
         self.sim = MjSim.from_xml_string(task.get_xml())
         # No multisampling: with it, silhouette pixels mix object and background in colour
@@ -198,7 +156,16 @@ class TabletopWorld:
         self._contype = m.geom_contype.copy()
         self._conaffinity = m.geom_conaffinity.copy()
         self._group = m.geom_group.copy()
+        self._lights = (m.light_diffuse.copy(), m.light_pos.copy(), m.light_dir.copy())
+        self._headlight = m.vis.headlight.diffuse.copy()
         self.bounds = {k: self._object_bounds(k) for k in self.kinds}
+
+    def _check(self, kind: str) -> str:
+        """The world's name of ``kind`` (a name, class or file ``object_spec`` resolves)."""
+        name = kind if kind in self.specs else object_spec(kind).name
+        if name not in self.specs:
+            raise ValueError(f"object {kind!r} is not in this world; it holds {self.kinds}")
+        return name
 
     # -- model state --------------------------------------------------------------------
 
@@ -219,10 +186,9 @@ class TabletopWorld:
         Returns:
             (M, 7) settled world poses.
         """
+        kinds = [self._check(k) for k in kinds]
         if len(set(kinds)) != len(kinds):
             raise ValueError(f"object kinds must be distinct, got {list(kinds)}")
-        for k in kinds:
-            _spec(k)
         if poses.shape != (len(kinds), 7):
             raise ValueError(f"poses must have shape ({len(kinds)}, 7), got {tuple(poses.shape)}")
         m, d = self._m, self._d
@@ -235,7 +201,7 @@ class TabletopWorld:
             m.geom_group[g] = self._group[g] if used else 3  # group 3 is not rendered
             m.body_gravcomp[self._body[k]] = 0.0 if used else 1.0
             if used:
-                pose = poses[list(kinds).index(k)].double().numpy()
+                pose = poses[kinds.index(k)].double().numpy()
                 qpos = np.r_[pose[:3], xyzw_to_wxyz(pose[3:])]
             else:  # parked: floating below the floor, no contacts, no gravity, invisible
                 qpos = np.r_[0.0, 5.0 + i, -1.0, 1.0, 0.0, 0.0, 0.0]
@@ -251,10 +217,25 @@ class TabletopWorld:
 
     def pose(self, kind: str) -> Tensor:
         """(7,) current world pose of ``kind``'s body (XYZW)."""
-        _spec(kind)
-        b = self._body[kind]
+        b = self._body[self._check(kind)]
         q = wxyz_to_xyzw(self._d.xquat[b])
         return torch.tensor(np.r_[self._d.xpos[b], q], dtype=torch.float32)
+
+    def relight(self, rng: np.random.Generator | None = None) -> None:
+        """Change the lighting at random (``rng``) or restore the default (None): the lamp's
+        brightness (x0.35-1.4) and colour cast (x0.8-1.2 per channel), its position
+        (+-0.8 m sideways) and the headlight's brightness (x0.3-1.5)."""
+        m = self._m
+        diffuse, pos, direction = (a.copy() for a in self._lights)
+        headlight = self._headlight.copy()
+        if rng is not None:
+            diffuse *= rng.uniform(0.35, 1.4) * rng.uniform(0.8, 1.2, size=3)
+            pos[:, :2] += rng.uniform(-0.8, 0.8, size=2)
+            direction = np.asarray(TABLE_CENTRE) - pos
+            direction /= np.linalg.norm(direction, axis=-1, keepdims=True)
+            headlight *= rng.uniform(0.3, 1.5)
+        m.light_diffuse[:], m.light_pos[:], m.light_dir[:] = diffuse, pos, direction
+        m.vis.headlight.diffuse[:] = headlight
 
     # -- rendering ----------------------------------------------------------------------
 
@@ -274,7 +255,8 @@ class TabletopWorld:
         """
         if height <= 0 or width <= 0 or height > 2048 or width > 2048:
             raise ValueError(f"image size must be in 1..2048, got {height}x{width}")
-        return render_view(self.sim, name, height, width, [self._body[k] for k in kinds])
+        bodies = [self._body[self._check(k)] for k in kinds]
+        return render_view(self.sim, name, height, width, bodies)
 
     # -- scenes -------------------------------------------------------------------------
 
@@ -285,9 +267,12 @@ class TabletopWorld:
         n_distractors: int | None = None,
         cameras: Sequence[str] = ("front",),
         image_size: int | tuple[int, int] = 256,
-        tipped: bool = False,
+        tip_probability: float = 0.0,
         target_range: float = 0.08,
         distractor_range: float = 0.2,
+        distractors: Sequence[str] | None = None,
+        relight: bool = False,
+        occlude_from: Sequence[float] | None = None,
     ) -> Scene:
         """Sample, settle and render a scene; the same arguments give the same scene.
 
@@ -298,84 +283,70 @@ class TabletopWorld:
                 None draws it uniformly from 0-4 (at most the number of other kinds).
             cameras: camera names to render.
             image_size: H (square) or (H, W).
-            tipped: lay objects that allow it (``ObjectSpec.can_tip``) on a random side.
+            tip_probability: chance that an object that may tip (``ObjectSpec.can_tip``) is
+                laid on a random side.
             target_range: the target's x and y are uniform in +-this (metres).
             distractor_range: distractors' x and y are uniform in +-this (metres).
+            distractors: the kinds distractors are drawn from (default: every other kind of
+                the world, in its order).
+            relight: change the lighting at random (``relight``); else the default light.
+            occlude_from: a camera position (3,): two distractors stand between the target
+                and it (``place_occluders``), the others anywhere.
         """
         if not isinstance(seed, int | np.integer) or seed < 0:
             raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
-        _spec(target)
+        if not 0.0 <= tip_probability <= 1.0:
+            raise ValueError(f"tip_probability must be in [0, 1], got {tip_probability}")
+        target = self._check(target)
         H, W = (image_size, image_size) if isinstance(image_size, int) else image_size
-        others = [k for k in self.kinds if k != target]
+        pool = self.kinds if distractors is None else [self._check(k) for k in distractors]
+        others = [k for k in pool if k != target]
         rng = np.random.default_rng(seed)
         most = min(4, len(others))
         n = int(rng.integers(0, most + 1)) if n_distractors is None else n_distractors
         if not 0 <= n <= most:
             raise ValueError(f"n_distractors must be in 0..{most}, got {n}")
         kinds = [target, *(others[i] for i in rng.choice(len(others), n, replace=False))]
-        poses = self._sample_poses(rng, kinds, tipped, target_range, distractor_range)
-        poses = self.arrange(kinds, poses)
+        if occlude_from is not None:  # the tallest hide the most: they go in front
+            kinds[1:] = sorted(kinds[1:], key=lambda k: -float(np.ptp(self.bounds[k][:, 2])))
+        rots = [
+            yaw_rotation(rng.uniform(0.0, 2 * math.pi))
+            @ rest_rotation(self.specs[k], rng, tip_probability)
+            for k in kinds
+        ]
+        radii = [footprint_radius(self.bounds[k], r) for k, r in zip(kinds, rots, strict=True)]
+        target_xy = place_apart(rng, radii[:1], [target_range], gap=0.01)[0]
+        target = (target_xy, radii[0])
+        # Two distractors in front of the target (as many as fit in its shadow), if asked.
+        front = [] if occlude_from is None else radii[1:3]
+        placed = place_occluders(rng, front, 0.01, target, occlude_from[:2]) if front else []
+        rest = radii[1 + len(front) :]
+        taken = [target, *zip(placed, front, strict=True)]
+        others = placed + place_apart(rng, rest, [distractor_range] * len(rest), 0.01, taken)
+        xys = [target_xy, *others]
+        initial = [
+            drop_pose(self.bounds[k], r, xy, TABLE_TOP_Z)
+            for k, r, xy in zip(kinds, rots, xys, strict=True)
+        ]
+        poses = self.arrange(kinds, torch.stack(initial).float())
+        self.relight(rng if relight else None)
         views = {c: self.render(c, kinds, H, W) for c in cameras}
         bounds = torch.stack([self.bounds[k] for k in kinds])
-        return Scene(int(seed), kinds, poses, bounds, views)
-
-    def _sample_poses(
-        self,
-        rng: np.random.Generator,
-        kinds: Sequence[str],
-        tipped: bool,
-        target_range: float,
-        distractor_range: float,
-    ) -> Tensor:
-        """(M, 7) collision-free initial poses just above the table."""
-        placed: list[tuple[np.ndarray, float]] = []
-        poses = []
-        for i, k in enumerate(kinds):
-            rot = self._rest_rotation(k, rng if tipped else None)
-            yaw = torch.tensor([0.0, 0.0, rng.uniform(0.0, 2 * math.pi)], dtype=torch.float64)
-            rot = roma.rotvec_to_rotmat(yaw) @ rot
-            radius = self._footprint_radius(k, rot)
-            span = target_range if i == 0 else distractor_range
-            for _ in range(500):
-                xy = rng.uniform(-span, span, size=2)
-                if all(np.linalg.norm(xy - c) > radius + r + 0.01 for c, r in placed):
-                    break
-            else:
-                raise RuntimeError(f"could not place {k!r} without overlap; widen distractor_range")
-            placed.append((xy, radius))
-            poses.append(self._drop_pose(k, rot, xy))
-        return torch.stack(poses)
-
-    def _rest_rotation(self, kind: str, rng: np.random.Generator | None) -> Tensor:
-        """(3, 3) rest orientation; with ``rng`` (and a kind that may tip), laid on a random
-        side: +-90 degrees about its x or y axis."""
-        spec = OBJECTS[kind]
-        rot = roma.unitquat_to_rotmat(torch.tensor(spec.rest, dtype=torch.float64))
-        if rng is not None and spec.can_tip:
-            axis = np.eye(3)[rng.integers(0, 2)] * rng.choice([-1.0, 1.0]) * (math.pi / 2)
-            rot = rot @ roma.rotvec_to_rotmat(torch.from_numpy(axis))
-        return rot
-
-    def _corners(self, kind: str, rot: Tensor) -> Tensor:
-        """(8, 3) bounding-box corners of ``kind`` rotated by ``rot``, about its origin."""
-        lo, hi = self.bounds[kind].double()
-        grid = torch.meshgrid(*torch.stack([lo, hi], dim=1), indexing="ij")
-        return torch.stack(grid, -1).reshape(-1, 3) @ rot.T
-
-    def _footprint_radius(self, kind: str, rot: Tensor) -> float:
-        return float(self._corners(kind, rot)[:, :2].norm(dim=-1).max())
-
-    def _drop_pose(self, kind: str, rot: Tensor, xy: np.ndarray) -> Tensor:
-        """(7,) pose at ``xy`` with orientation ``rot``, its lowest corner 3 mm above the table."""
-        z = TABLE_TOP_Z + 0.003 - float(self._corners(kind, rot)[:, 2].min())
-        t = torch.tensor([float(xy[0]), float(xy[1]), z], dtype=torch.float64)
-        return torch.cat([t, roma.rotmat_to_unitquat(rot)]).float()
+        symmetries = [self.specs[k].symmetry for k in kinds]
+        return Scene(int(seed), kinds, poses, bounds, views, symmetries)
 
 
 @functools.cache
-def tabletop_world(extra_cameras: tuple[CameraSpec, ...] = ()) -> TabletopWorld:
-    """The shared world for these extra cameras (built once per process)."""
-    return TabletopWorld(extra_cameras)
+def _world(kinds: tuple[str, ...], extra_cameras: tuple[CameraSpec, ...]) -> TabletopWorld:
+    return TabletopWorld(kinds, extra_cameras)
+
+
+def tabletop_world(
+    kinds: Sequence[str] = DEFAULT_DISTRACTORS, extra_cameras: tuple[CameraSpec, ...] = ()
+) -> TabletopWorld:
+    """The shared world holding ``kinds`` with these extra cameras (built once per process
+    for each set of kinds)."""
+    return _world(tuple(sorted(set(map(str, kinds)))), tuple(extra_cameras))
 
 
 def make_scene(
@@ -384,7 +355,8 @@ def make_scene(
     n_distractors: int | None = None,
     cameras: Sequence[str | CameraSpec] = ("front",),
     image_size: int | tuple[int, int] = 256,
-    tipped: bool = False,
+    tip_probability: float = 0.0,
+    distractors: Sequence[str] = DEFAULT_DISTRACTORS,
 ) -> Scene:
     """Generate a tabletop scene (see ``TabletopWorld.generate``); reproducible from ``seed``.
 
@@ -393,38 +365,41 @@ def make_scene(
     """
     extra = tuple(c for c in cameras if isinstance(c, CameraSpec))
     names = [c.name if isinstance(c, CameraSpec) else c for c in cameras]
-    world = tabletop_world(extra)
-    return world.generate(seed, target, n_distractors, names, image_size, tipped)
+    world = tabletop_world([target, *distractors], extra)
+    return world.generate(
+        seed, target, n_distractors, names, image_size, tip_probability, distractors=distractors
+    )
 
 
 def object_views(
     kind: str,
     n_rotations: int = 4,
-    cameras: Sequence[str] = ("front", "left", "back", "right", "top"),
+    cameras: Sequence[str] = LEARNING_CAMERAS,
     image_size: int = 256,
     tipped: bool = False,
 ) -> tuple[list[RGBDView], Tensor]:
     """Views of one object alone on the table, for learning its model.
 
     The object stands at the table centre, turned by ``n_rotations`` yaws evenly spaced
-    over a full turn (and laid on its side when ``tipped``); each pose is shot by every camera.
+    over a full turn (and laid on a side, drawn per yaw, when ``tipped``); each pose is shot
+    by every camera.
 
     Returns:
         V = n_rotations * len(cameras) views (label 0 = the object) and (V, 7) object poses.
     """
-    _spec(kind)
     if n_rotations < 1:
         raise ValueError(f"n_rotations must be >= 1, got {n_rotations}")
-    world = tabletop_world()
+    world = tabletop_world([kind])
+    name = world._check(kind)
+    spec, bounds = world.specs[name], world.bounds[name]
     views: list[RGBDView] = []
     poses: list[Tensor] = []
     for j in range(n_rotations):
-        side = np.random.default_rng(j) if tipped else None
-        yaw = torch.tensor([0.0, 0.0, 2 * math.pi * j / n_rotations], dtype=torch.float64)
-        rot = roma.rotvec_to_rotmat(yaw) @ world._rest_rotation(kind, side)
-        settled = world.arrange([kind], world._drop_pose(kind, rot, np.zeros(2))[None])[0]
+        rest = rest_rotation(spec, np.random.default_rng(j), float(tipped))
+        rot = yaw_rotation(2 * math.pi * j / n_rotations) @ rest
+        settled = world.arrange([name], drop_pose(bounds, rot, (0.0, 0.0), TABLE_TOP_Z)[None])[0]
         for c in cameras:
-            views.append(world.render(c, [kind], image_size, image_size))
+            views.append(world.render(c, [name], image_size, image_size))
             poses.append(settled)
     return views, torch.stack(poses)
 
@@ -432,7 +407,7 @@ def object_views(
 def object_patches(
     kind: str,
     n_rotations: int = 4,
-    cameras: Sequence[str] = ("front", "left", "back", "right", "top"),
+    cameras: Sequence[str] = LEARNING_CAMERAS,
     image_size: int = 256,
     tipped: bool = False,
     extractor: PatchExtractor | None = None,

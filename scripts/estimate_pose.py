@@ -25,7 +25,9 @@ def main() -> None:
     nbp_defaults = {k: p.default for k, p in inspect.signature(NBP).parameters.items()}
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, default=None, help="output directory")
-    parser.add_argument("--object", default="cereal", help="object kind")
+    parser.add_argument(
+        "--object", default="cereal", help="a robosuite object class (e.g. can) or an MJCF file"
+    )
     parser.add_argument("--scenes", type=positive_int, default=5)
     parser.add_argument("--condition", default="clutter", choices=sorted(CONDITIONS))
     parser.add_argument("--particles", type=positive_int, default=nbp_defaults["n_particles"])

@@ -21,7 +21,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 
 from vistask.cli import positive_int
-from vistask.envs.tabletop import OBJECTS, benchmark_scenes, make_scene, object_patches
+from vistask.envs.tabletop import benchmark_scenes, make_scene, object_patches
 from vistask.runs import print_table, run_dir, write_summary
 from vistask.vision import view_patches
 from vistask.vision.draw import draw_patches
@@ -30,7 +30,9 @@ from vistask.vision.draw import draw_patches
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, default=None, help="output directory")
-    parser.add_argument("--target", default="cereal", choices=sorted(OBJECTS))
+    parser.add_argument(
+        "--target", default="cereal", help="a robosuite object class (e.g. can) or an MJCF file"
+    )
     parser.add_argument(
         "--scenes", type=positive_int, default=5, help="scenes to time (seeds 0..N-1)"
     )

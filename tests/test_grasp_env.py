@@ -19,10 +19,13 @@ from vistask.envs.grasp_trial import (
     top_down_grasp,
 )
 
+EASY = {"n_distractors": 0, "placement_range": 0.06, "tip_probability": 0.0}
+
 
 @pytest.fixture(scope="module")
 def env():
-    env = GraspTrialEnv("cube", cameras=("front",), image_size=96)
+    # The easy placement the scripted grasps assume: upright, near the centre, alone.
+    env = GraspTrialEnv("cube", cameras=("front",), image_size=96, **EASY)
     yield env
     env.close()
 
@@ -93,7 +96,7 @@ def test_malformed_grasps_are_rejected(env, grasp, message) -> None:
 
 @pytest.mark.slow
 def test_parallel_trials_in_processes() -> None:
-    runner = VectorGraspTrials("cube", num_envs=2)
+    runner = VectorGraspTrials("cube", num_envs=2, **EASY)
     try:
         poses = runner.reset([1, 2])
         assert poses.shape == (2, 7)
@@ -113,7 +116,10 @@ def test_ray_actors_run_the_trials_of_local_processes() -> None:
     from vistask.grasp import demonstration_density, run_trials, scripted_teacher_grasps
 
     results = []
-    for make in (lambda: RayGraspTrials("cube", num_envs=2), lambda: VectorGraspTrials("cube", 1)):
+    for make in (
+        lambda: RayGraspTrials("cube", num_envs=2, **EASY),
+        lambda: VectorGraspTrials("cube", 1, **EASY),
+    ):
         runner = make()
         try:
             bounds = torch.as_tensor(runner.object_bounds, dtype=torch.float32)
@@ -145,3 +151,59 @@ def test_a_simulation_gone_nan_fails_its_trial_and_the_next_one_runs(env, monkey
     _, info = env.reset(seed=3)
     _, reward, _, _, info = env.step(top_down_grasp(info["object_pose"], info["object_bounds"]))
     assert reward == 1.0 and info["reason"] == "success" and info["error"] == ""
+
+
+def test_estimated_poses_drive_the_trials() -> None:
+    """The trials act on the pose the robot estimated: with the estimate fixed, the grasp does
+    not depend on where the object really is; shift the estimate and the grasp shifts."""
+    from types import SimpleNamespace
+
+    from vistask.envs.tabletop import object_patches
+    from vistask.grasp import demonstration_density, run_trials, scripted_teacher_grasps
+    from vistask.objects import ObjectModel
+
+    patches = object_patches("cube", 2, ("front", "top"), 128, voxel=0.004)
+    model = ObjectModel.learn(patches, name="cube")
+    runner = VectorGraspTrials(
+        "cube", 1, model, asynchronous=False, cameras=("front",), image_size=96, **EASY
+    )
+
+    class Fixed:
+        """An estimator that always sees the object at ``pose``."""
+
+        def __init__(self, pose: torch.Tensor) -> None:
+            self.pose = pose
+
+        def infer(self, model, patches, device=None, seed=0):
+            return SimpleNamespace(pose=self.pose)
+
+    try:
+        bounds = torch.as_tensor(runner.object_bounds, dtype=torch.float32)
+        teacher = scripted_teacher_grasps(bounds)
+        density = demonstration_density(teacher, generator=torch.Generator().manual_seed(0))
+
+        def trials(seeds, pose):
+            runner.env.envs[0].nbp = Fixed(pose)
+            records = []
+            generator = torch.Generator().manual_seed(1)
+            run_trials(density, runner, 2, seeds, None, generator, records=records)
+            return records
+
+        estimate = torch.tensor([0.0, 0.05, 0.83, 0.0, 0.0, 0.0, 1.0])
+        here, there = trials([1, 2], estimate), trials([7, 8], estimate)
+        truths = [np.array(r["object_pose"]) for r in here + there]
+        assert np.abs(truths[0][:2] - truths[2][:2]).max() > 0.005  # the objects moved
+        for a, b in zip(here, there, strict=True):
+            np.testing.assert_allclose(a["world_grasp"], b["world_grasp"], atol=1e-6)
+            np.testing.assert_allclose(a["estimated_pose"], estimate.numpy(), atol=1e-6)
+            error = np.linalg.norm(np.array(a["object_pose"][:3]) - estimate[:3].numpy())
+            assert abs(a["pose_error_m"] - error) < 1e-4
+        shift = torch.tensor([0.04, -0.02, 0.0, 0.0, 0.0, 0.0, 0.0])
+        moved = trials([1, 2], estimate + shift)
+        for a, b in zip(here, moved, strict=True):
+            np.testing.assert_allclose(
+                np.array(b["world_grasp"]) - a["world_grasp"], shift.numpy(), atol=1e-5
+            )
+            np.testing.assert_allclose(a["grasp"], b["grasp"], atol=1e-6)  # object frame
+    finally:
+        runner.close()

@@ -18,7 +18,7 @@ def test_grasp_learning_stopped_after_a_cycle_resumes_bit_for_bit(tmp_path, monk
     from vistask.grasp import GraspLearner
 
     tiny = {"objects": ("cube",), "hypothesis": "demo", "cycles": 3, "trials_per_cycle": 3}
-    tiny |= {"eval_trials": 2, "num_envs": 1, "candidates": 2}
+    tiny |= {"eval_trials": 2, "num_envs": 1, "pose_source": "true", "n_distractors": 0}
     experiment = GraspExperiment(**tiny)
     straight = experiment.run(tmp_path / "straight")
 
@@ -51,7 +51,7 @@ def test_grasp_learning_stopped_after_a_cycle_resumes_bit_for_bit(tmp_path, monk
         a.trials.success, b.trials.success
     )
     assert torch.equal(a.empirical.weights, b.empirical.weights)
-    for key in ("hypothesis_success", "empirical_success", "empirical_best_of_k_success", "trials"):
+    for key in ("hypothesis_success", "empirical_success", "best_of_10_success", "trials"):
         assert resumed["objects"]["cube"][key] == straight["objects"]["cube"][key]
     # Other settings in the same folder are refused rather than mixed in.
     with pytest.raises(ValueError, match=r"other settings \(cycles\)"):
@@ -225,7 +225,7 @@ def test_learn_grasps_stopped_by_sigterm_resumes_with_the_results_of_a_straight_
 
     script = str(Path(__file__).resolve().parents[1] / "scripts" / "learn_grasps.py")
     args = ["--objects", "cube", "--hypothesis", "demo", "--cycles", "3", "--trials-per-cycle", "4"]
-    args += ["--eval-trials", "2", "--num-envs", "1", "--candidates", "2"]
+    args += ["--eval-trials", "2", "--num-envs", "1", "--pose-source", "true", "--distractors", "0"]
     straight, stopped = tmp_path / "straight", tmp_path / "stopped"
     subprocess.run(
         [sys.executable, script, *args, "--out", str(straight)], check=True, capture_output=True
@@ -246,6 +246,6 @@ def test_learn_grasps_stopped_by_sigterm_resumes_with_the_results_of_a_straight_
     )
     a = json.loads((straight / "summary.json").read_text())["objects"]["cube"]
     b = json.loads((stopped / "summary.json").read_text())["objects"]["cube"]
-    for key in ("hypothesis_success", "empirical_success", "empirical_best_of_k_success", "trials"):
+    for key in ("hypothesis_success", "empirical_success", "best_of_10_success", "trials"):
         assert a[key] == b[key], key
     assert [c["successes"] for c in a["cycles"]] == [c["successes"] for c in b["cycles"]]

@@ -101,3 +101,22 @@ def test_point_cloud_and_errors(camera: Camera) -> None:
     with pytest.raises(ValueError, match="rgb"):
         RGBDView(torch.zeros(H, W, 3), depth, camera)
     assert pixel_grid(2, 3)[1, 2].tolist() == [2.0, 1.0]
+
+
+def test_depth_noise_is_gaussian_and_drops_only_edge_pixels(camera: Camera) -> None:
+    H, W = camera.height, camera.width
+    depth = torch.full((H, W), 1.0)
+    depth[:, W // 2 :] = 0.7  # one vertical depth edge
+    view = RGBDView(torch.zeros(H, W, 3, dtype=torch.uint8), depth, camera)
+    same = view.with_depth_noise(0.0, edge_dropout=0.0)
+    assert torch.equal(same.depth, depth)
+    noisy = view.with_depth_noise(
+        0.002, edge_dropout=1.0, generator=torch.Generator().manual_seed(0)
+    )
+    dropped = torch.isnan(noisy.depth)
+    assert dropped[:, W // 2 - 1 : W // 2 + 1].all()  # both sides of the edge
+    assert dropped.sum() == 2 * H
+    residual = (noisy.depth - depth)[~dropped]
+    assert abs(float(residual.std()) - 0.002) < 2e-4 and abs(float(residual.mean())) < 2e-4
+    with pytest.raises(ValueError, match="sigma"):
+        view.with_depth_noise(-1.0)

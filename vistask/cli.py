@@ -38,6 +38,11 @@ def unit_fraction(text: str) -> float:
     return _checked(text, float, lambda v: 0 <= v < 1, "in [0, 1)")
 
 
+def probability(text: str) -> float:
+    """A float in [0, 1]."""
+    return _checked(text, float, lambda v: 0 <= v <= 1, "in [0, 1]")
+
+
 def interrupt_on_sigterm() -> None:
     """Turn SIGTERM (a scheduler or ``kill`` stopping the run) into KeyboardInterrupt, so that
     a stopped run closes its simulators and workers as Ctrl-C does; its checkpoints are

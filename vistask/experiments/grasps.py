@@ -1,10 +1,15 @@
 """The grasp-learning experiment behind ``scripts/learn_grasps.py``.
 
-Per object: build the hypothesis density (feature-induced from the object's patches, or from
-a scripted expert's demonstrations), measure its success on held-out object placements,
-learn an empirical density in cycles of trials, measure that on the same held-out
-placements, and save densities, TensorBoard scalars and pictures. Object poses are the
-simulator's ground truth (the NBP path is the ``pose_fn`` hook of ``GraspLearner``).
+Per object: learn its object model from its own views, build the hypothesis density
+(feature-induced from the model's patches, or from a scripted expert's demonstrations),
+measure its success on held-out placements, learn an empirical density in cycles of trials,
+measure that on the same held-out placements, and save densities, per-trial records,
+TensorBoard scalars and pictures.
+
+Every trial sees for itself by default: it renders the scene, estimates the object's pose
+with NBP on the learned model (``vistask.envs.grasp_trial.EstimatedPose``), and acts on that
+estimate; the simulator's true pose only scores the estimate. ``pose_source="true"`` acts on
+the true poses instead (the ablation).
 
 The robosuite environment is imported inside the functions: the rest of ``vistask.grasp``
 does not need a simulator.
@@ -13,6 +18,7 @@ does not need a simulator.
 from __future__ import annotations
 
 import json
+import statistics
 import time
 from collections.abc import Sequence
 from dataclasses import asdict
@@ -20,8 +26,15 @@ from pathlib import Path
 from typing import Any
 
 import torch
+from scipy.stats import binomtest
 
 from vistask.checks import check_at_least, check_positive
+from vistask.experiments.pose import (
+    SUCCESS_ROTATION_DEG,
+    SUCCESS_TRANSLATION_M,
+    draw_estimate,
+    learn_object_model,
+)
 from vistask.grasp.hypothesis import (
     demonstration_density,
     feature_hypothesis_density,
@@ -29,6 +42,7 @@ from vistask.grasp.hypothesis import (
 )
 from vistask.grasp.learning import GraspLearner, evaluate_density
 from vistask.grasp.plots import density_figure
+from vistask.objects import ObjectModel
 from vistask.parallel import cluster_address
 from vistask.runs import check_same_settings, tensorboard, write_summary
 from vistask.saving import load_state, save_state
@@ -40,39 +54,50 @@ CHECKPOINT = "GraspExperimentCheckpoint"  # the kind of file of an object's last
 LEARN_SEED_BASE = 1_000_000
 EVAL_SEED_BASE = 9_000_000
 
-
-def object_patches_for(kind: str):
-    """Object-frame patches of ``kind`` from the tabletop front end (None if unavailable)."""
-    from vistask.envs.tabletop import OBJECTS, object_patches
-
-    if kind not in OBJECTS:
-        return None
-    return object_patches(kind, voxel=0.004)
-
+BEST_OF = 10
+"""The "best of 10" evaluation executes the likeliest of this many reachable draws."""
 
 HYPOTHESES = ("feature", "demo")
+POSE_SOURCES = ("estimate", "true")
+DEFAULT_OBJECTS = ("box", "cereal", "can", "bottle", "bread", "lemon")
 
 
 def hypothesis_density(
-    kind: str,
     source: str,
     bounds: torch.Tensor,
     sigma_t: float,
     sigma_r: float,
-    patches,
+    model: ObjectModel,
     generator,
 ) -> SE3KDE:
-    """The object-frame hypothesis density of ``kind`` from ``source`` ("feature": pairs of
-    ``patches``; "demo": the scripted teacher's grasps from the object's ``bounds``), with
-    bandwidth (sigma_t, sigma_r)."""
+    """The object-frame hypothesis density from ``source`` ("feature": pairs of the object
+    model's patches; "demo": the scripted teacher's grasps from the object's ``bounds``),
+    with bandwidth (sigma_t, sigma_r)."""
     if source == "feature":
-        if patches is None:
-            raise ValueError(f"no patches for {kind!r}: use the 'demo' hypothesis")
-        return feature_hypothesis_density(patches, sigma_t, sigma_r, generator=generator)
+        return feature_hypothesis_density(model.patches, sigma_t, sigma_r, generator=generator)
     if source == "demo":
         teacher = scripted_teacher_grasps(bounds)
         return demonstration_density(teacher, sigma_t=sigma_t, sigma_r=sigma_r, generator=generator)
     raise ValueError(f"unknown hypothesis source {source!r}; use 'feature' or 'demo'")
+
+
+def success_interval(successes: int, trials: int) -> list[float]:
+    """95% Wilson interval [low, high] of a success rate."""
+    ci = binomtest(successes, trials).proportion_ci(method="wilson")
+    return [float(ci.low), float(ci.high)]
+
+
+def pose_failure_share(records: Sequence[dict[str, Any]]) -> float | None:
+    """Among failed trials, the share whose pose estimate was off by more than the pose
+    benchmark's success limits (2 cm or 15 degrees); None without estimates or failures."""
+    failed = [r for r in records if not r["success"] and "pose_error_m" in r]
+    if not failed:
+        return None
+    off = [
+        r["pose_error_m"] >= SUCCESS_TRANSLATION_M or r["pose_error_deg"] >= SUCCESS_ROTATION_DEG
+        for r in failed
+    ]
+    return sum(off) / len(off)
 
 
 class GraspExperiment:
@@ -82,11 +107,17 @@ class GraspExperiment:
     attributes of the same names.
 
     Args:
-        objects: object kinds (``vistask.envs.grasp_trial.GRASP_OBJECTS``).
+        objects: object kinds: presets, robosuite object classes or MJCF files
+            (``vistask.envs.objects.object_spec``).
         hypothesis: "feature" (patch pairs) or "demo" (scripted expert + noise).
+        pose_source: "estimate" (every trial estimates the object's pose from its cameras
+            with NBP and acts on that) or "true" (the simulator's poses: the ablation).
         cycles: learning cycles per object.
         trials_per_cycle: trials per cycle (cycles * trials_per_cycle is the budget).
-        eval_trials: held-out trials for each of the hypothesis and empirical densities.
+        eval_trials: held-out trials for each of the four evaluations (hypothesis and
+            empirical densities, sampled and best of ``BEST_OF``).
+        n_distractors: other objects on the table in every trial.
+        tip_probability: chance that an object that may tip lies on a side.
         num_envs: simulators running trials side by side (local processes, or Ray actors
             with ``address``); the results do not depend on it.
         sigma_t, sigma_r: bandwidth of the hypothesis density.
@@ -94,8 +125,6 @@ class GraspExperiment:
             than the hypothesis's because its particles are already noisy successful draws,
             and a wide kernel would add that noise again every cycle.
         c_rel: importance-weight offset relative to the mean proposal density.
-        candidates: the "best of K" evaluation executes the likeliest of this many reachable
-            draws (both densities are also evaluated on plain draws).
         seed: random seed of grasp draws.
         address: a Ray cluster to run the simulators on as actors (``RayGraspTrials``;
             default ``RAY_ADDRESS``); None runs them as local processes
@@ -103,24 +132,26 @@ class GraspExperiment:
             ``scripts/bench_parallel.py``).
 
     Raises:
-        ValueError: no object, a hypothesis source other than ``HYPOTHESES``, a count below 1,
-            a bandwidth not positive, or c_rel negative.
+        ValueError: no object, a hypothesis or pose source not among ``HYPOTHESES`` /
+            ``POSE_SOURCES``, a count below 1, a bandwidth not positive, or c_rel negative.
     """
 
     def __init__(
         self,
-        objects: Sequence[str] = ("box", "can", "bread"),
+        objects: Sequence[str] = DEFAULT_OBJECTS,
         hypothesis: str = "feature",
+        pose_source: str = "estimate",
         cycles: int = 5,
         trials_per_cycle: int = 60,
         eval_trials: int = 100,
+        n_distractors: int = 2,
+        tip_probability: float = 0.3,
         num_envs: int = 2,
         sigma_t: float = 0.01,
         sigma_r: float = 0.25,
         empirical_sigma_t: float = 0.005,
         empirical_sigma_r: float = 0.15,
         c_rel: float = 1.0,
-        candidates: int = 10,
         seed: int = 0,
         address: str | None = None,
     ) -> None:
@@ -128,13 +159,14 @@ class GraspExperiment:
             raise ValueError(f"objects must name at least one object kind, got {objects!r}")
         if hypothesis not in HYPOTHESES:
             raise ValueError(f"hypothesis must be one of {HYPOTHESES}, got {hypothesis!r}")
+        if pose_source not in POSE_SOURCES:
+            raise ValueError(f"pose_source must be one of {POSE_SOURCES}, got {pose_source!r}")
         check_at_least(
             1,
             cycles=cycles,
             trials_per_cycle=trials_per_cycle,
             eval_trials=eval_trials,
             num_envs=num_envs,
-            candidates=candidates,
         )
         check_positive(
             sigma_t=sigma_t,
@@ -142,19 +174,23 @@ class GraspExperiment:
             empirical_sigma_t=empirical_sigma_t,
             empirical_sigma_r=empirical_sigma_r,
         )
-        check_at_least(0, c_rel=c_rel)
-        self.objects = tuple(objects)
+        check_at_least(0, c_rel=c_rel, n_distractors=n_distractors)
+        if not 0.0 <= tip_probability <= 1.0:
+            raise ValueError(f"tip_probability must be in [0, 1], got {tip_probability}")
+        self.objects = tuple(str(o) for o in objects)
         self.hypothesis = hypothesis
+        self.pose_source = pose_source
         self.cycles = cycles
         self.trials_per_cycle = trials_per_cycle
         self.eval_trials = eval_trials
+        self.n_distractors = n_distractors
+        self.tip_probability = tip_probability
         self.num_envs = num_envs
         self.sigma_t = sigma_t
         self.sigma_r = sigma_r
         self.empirical_sigma_t = empirical_sigma_t
         self.empirical_sigma_r = empirical_sigma_r
         self.c_rel = c_rel
-        self.candidates = candidates
         self.seed = seed
         self.address = address
 
@@ -163,42 +199,48 @@ class GraspExperiment:
         decide only where the trials run)."""
         return {k: v for k, v in vars(self).items() if k not in ("num_envs", "address")}
 
-    def learn_object(self, kind: str, out: Path, writer=None, progress=None) -> dict[str, Any]:
+    def env_kwargs(self) -> dict[str, Any]:
+        """``GraspTrialEnv`` arguments of every trial."""
+        return {"n_distractors": self.n_distractors, "tip_probability": self.tip_probability}
+
+    def _runner(self, kind: str, model: ObjectModel | None):
+        from vistask.envs.grasp_trial import RayGraspTrials, VectorGraspTrials
+
+        if cluster_address(self.address) is None:
+            return VectorGraspTrials(kind, self.num_envs, model, **self.env_kwargs())
+        return RayGraspTrials(kind, self.num_envs, self.address, model, **self.env_kwargs())
+
+    def learn_object(
+        self, kind: str, model: ObjectModel, out: Path, writer=None, progress=None
+    ) -> dict[str, Any]:
         """Run hypothesis evaluation, learning and empirical evaluation for one object.
 
         Args:
             kind: object kind.
-            out: directory for this object's files (densities, learner, pictures).
-            writer: optional TensorBoard ``SummaryWriter`` (scalars under ``kind/``).
+            model: its object model (the hypothesis's patches; the pose estimates).
+            out: directory for this object's files (densities, learner, records, pictures).
+            writer: optional TensorBoard ``SummaryWriter`` (scalars under the object's name).
             progress: optional tqdm bar advanced by one per trial.
 
         Returns:
-            the object's summary: ``hypothesis_success`` and ``empirical_success`` (plain
-            draws), ``hypothesis_best_of_k_success`` and ``empirical_best_of_k_success`` (the
-            likeliest of ``candidates`` reachable draws), all on the same ``eval_trials``
-            held-out placements; ``trials`` and ``trials_per_minute`` of learning; per-cycle
-            figures.
+            the object's summary (see ``summarize_object``).
         """
-        from vistask.envs.grasp_trial import RayGraspTrials, VectorGraspTrials
-
         out.mkdir(parents=True, exist_ok=True)
+        name = model.name
         generator = torch.Generator().manual_seed(self.seed)
         start = time.perf_counter()
-        if cluster_address(self.address) is None:
-            runner = VectorGraspTrials(kind, self.num_envs)
-        else:
-            runner = RayGraspTrials(kind, self.num_envs, self.address)
+        runner = self._runner(kind, model if self.pose_source == "estimate" else None)
         try:
             bounds = torch.as_tensor(runner.object_bounds, dtype=torch.float32)
-            patches = object_patches_for(kind)
             step = (lambda n: progress.update(n)) if progress is not None else None
             eval_seeds = range(EVAL_SEED_BASE, EVAL_SEED_BASE + self.eval_trials)
+            records: list[dict[str, Any]] = []
 
-            def evaluate(density: SE3KDE) -> dict[str, float]:
+            def evaluate(density: SE3KDE, phase: str) -> None:
                 """Plain draws and best-of-K draws on the same held-out placements."""
-                figures = {}
-                for name, k in (("sample", 1), ("best", self.candidates)):
-                    r = evaluate_density(
+                for suffix, k in (("", 1), (f"_best_of_{BEST_OF}", BEST_OF)):
+                    found: list[dict[str, Any]] = []
+                    evaluate_density(
                         density,
                         runner,
                         self.eval_trials,
@@ -207,24 +249,24 @@ class GraspExperiment:
                         generator,
                         step,
                         candidates=k,
+                        records=found,
                     )
-                    figures[name] = r["success_rate"]
-                return figures
+                    records.extend({"phase": phase + suffix, **f} for f in found)
 
             checkpoint = out / "checkpoint.pt"
             if checkpoint.exists():  # resume after the last finished cycle
                 saved = load_state(checkpoint, CHECKPOINT)
                 learner = GraspLearner.from_state_dict(saved["learner"])
-                hypothesis, hyp_eval = learner.hypothesis, saved["hypothesis_eval"]
+                hypothesis, records = learner.hypothesis, saved["records"]
                 generator.set_state(saved["generator"])
                 if step is not None:
                     step(2 * self.eval_trials + len(learner.trials))
             else:
                 hypothesis = hypothesis_density(
-                    kind, self.hypothesis, bounds, self.sigma_t, self.sigma_r, patches, generator
+                    self.hypothesis, bounds, self.sigma_t, self.sigma_r, model, generator
                 )
                 hypothesis.save(out / "hypothesis.pt")
-                hyp_eval = evaluate(hypothesis)
+                evaluate(hypothesis, "hypothesis")
                 learner = GraspLearner(
                     hypothesis,
                     runner.workspace,
@@ -235,208 +277,248 @@ class GraspExperiment:
             n = self.trials_per_cycle
             for k in range(len(learner.history), self.cycles):
                 base = LEARN_SEED_BASE + 100_000 * k
-                stats = learner.run_cycle(runner, n, range(base, base + n), generator, step)
+                found = []
+                stats = learner.run_cycle(
+                    runner, n, range(base, base + n), generator, step, records=found
+                )
+                records.extend({"phase": "learning", "cycle": k, **f} for f in found)
                 # Everything the next cycle needs, so that a stop loses at most this cycle.
                 state = {
                     "learner": learner.state_dict(),
                     "generator": generator.get_state(),
-                    "hypothesis_eval": hyp_eval,
+                    "records": records,
                 }
                 save_state(checkpoint, CHECKPOINT, state)
                 if writer is not None:
-                    for name in ("success_rate", "effective_sample_size", "trials", "particles"):
-                        writer.add_scalar(f"{kind}/{name}", getattr(stats, name), k)
-                    writer.add_scalar(f"{kind}/cumulative_trials", len(learner.trials), k)
+                    for key in ("success_rate", "effective_sample_size", "trials", "particles"):
+                        writer.add_scalar(f"{name}/{key}", getattr(stats, key), k)
+                    writer.add_scalar(f"{name}/cumulative_trials", len(learner.trials), k)
+                    errors = [f["pose_error_m"] for f in found if "pose_error_m" in f]
+                    if errors:
+                        writer.add_scalar(
+                            f"{name}/pose_error_cm", 100 * statistics.fmean(errors), k
+                        )
             learner.save(out / "learner.pt")
             empirical = learner.empirical
-            if empirical is None:
-                emp_eval = {"sample": 0.0, "best": 0.0}
-            else:
+            if empirical is not None:
                 empirical.save(out / "empirical.pt")
-                emp_eval = evaluate(empirical)
-            points = None if patches is None else patches.positions
-            colors = None if patches is None else patches.colors[:, 0]
+                evaluate(empirical, "empirical")
             density_figure(
                 [("hypothesis", hypothesis), ("empirical", empirical)],
-                points,
-                colors,
+                model.patches.positions,
+                model.patches.colors[:, 0],
                 out / "densities.png",
-                title=kind,
+                title=name,
             )
         finally:
             runner.close()
-        learn_seconds = sum(h.seconds for h in learner.history)
-        summary = {
-            "hypothesis_source": self.hypothesis,
-            "hypothesis_success": hyp_eval["sample"],
-            "empirical_success": emp_eval["sample"],
-            "hypothesis_best_of_k_success": hyp_eval["best"],
-            "empirical_best_of_k_success": emp_eval["best"],
-            "trials": len(learner.trials),
-            "trials_per_minute": 60.0 * len(learner.trials) / learn_seconds,
-            "eval_trials_per_measure": self.eval_trials,
-            "learning_success": float(learner.trials.success.float().mean()),
-            "empirical_particles": 0 if empirical is None else len(empirical),
-            "empirical_ess": 0.0 if empirical is None else empirical.effective_sample_size(),
-            "cycles": [asdict(h) for h in learner.history],
-            "seconds": time.perf_counter() - start,
-        }
+        with (out / "trials.jsonl").open("w") as f:
+            f.writelines(json.dumps(r) + "\n" for r in records)
+        summary = summarize_object(records, learner, self)
+        summary["seconds"] = time.perf_counter() - start
         if writer is not None:
-            writer.add_scalar(f"{kind}/hypothesis_success", summary["hypothesis_success"], 0)
-            writer.add_scalar(f"{kind}/empirical_success", summary["empirical_success"], 0)
+            for key in ("hypothesis_success", "empirical_success", f"best_of_{BEST_OF}_success"):
+                writer.add_scalar(f"{name}/{key}", summary[key], 0)
         return summary
 
-    def run(self, out: Path) -> dict[str, Any]:
+    def run(self, out: Path, pictures: int = 3) -> dict[str, Any]:
         """All objects; writes ``out/summary.json`` (the settings under ``config``, the
-        figures per object under ``objects``) and TensorBoard logs.
+        figures per object under ``objects``), per object its files in ``out/<name>/``, and
+        TensorBoard logs.
 
-        A folder that a stopped run left is resumed: objects already finished
-        (``<object>/summary.json``) are kept, the one in progress continues after its last
-        finished cycle (``<object>/checkpoint.pt``), with the results of a run straight
-        through. The settings must be those of the stopped run (``config.json``).
+        The object models are learned first, before any robot simulator runs in this
+        process (``out/<name>/model.pt``). A folder that a stopped run left is resumed:
+        objects already finished (``<name>/summary.json``) are kept, the one in progress
+        continues after its last finished cycle (``<name>/checkpoint.pt``), with the results
+        of a run straight through. The settings must be those of the stopped run
+        (``config.json``).
+
+        Args:
+            out: the run's folder.
+            pictures: per object, held-out scenes drawn with the estimated and the true pose
+                (``<name>/pose_<seed>.png``).
         """
         from tqdm import tqdm
 
+        from vistask.envs.objects import object_name
+
         out.mkdir(parents=True, exist_ok=True)
         check_same_settings(out / "config.json", self.settings())
+        names = {kind: object_name(kind) for kind in self.objects}
+        models = {}
+        for kind, name in names.items():
+            path = out / name / "model.pt"
+            if path.exists():
+                models[kind] = ObjectModel.load(path)
+            else:
+                models[kind] = learn_object_model(kind, self.tip_probability > 0)
+                path.parent.mkdir(parents=True, exist_ok=True)
+                models[kind].save(path)
         per_object = self.cycles * self.trials_per_cycle + 4 * self.eval_trials
         writer = tensorboard(out)
         results: dict[str, Any] = {}
         try:
             with tqdm(total=per_object * len(self.objects), unit="trial") as bar:
-                for kind in self.objects:
-                    bar.set_description(kind)
-                    done = out / kind / "summary.json"
+                for kind, name in names.items():
+                    bar.set_description(name)
+                    done = out / name / "summary.json"
                     if done.exists():
-                        results[kind] = json.loads(done.read_text())
+                        results[name] = json.loads(done.read_text())
                         bar.update(per_object)
                         continue
-                    results[kind] = self.learn_object(kind, out / kind, writer, bar)
-                    write_summary(done, results[kind])
+                    results[name] = self.learn_object(kind, models[kind], out / name, writer, bar)
+                    write_summary(done, results[name])
         finally:
             writer.close()
+        if pictures:
+            for kind, name in names.items():
+                seeds = range(EVAL_SEED_BASE, EVAL_SEED_BASE + pictures)
+                pose_pictures(kind, models[kind], seeds, out / name, self.env_kwargs())
         summary = {"config": dict(vars(self)), "objects": results}
         write_summary(out / "summary.json", summary)
+        success_figure(results, out / "success.png")
         return summary
+
+
+def summarize_object(
+    records: Sequence[dict[str, Any]], learner: GraspLearner, experiment: GraspExperiment
+) -> dict[str, Any]:
+    """An object's summary from its per-trial records.
+
+    Returns:
+        ``hypothesis_success``, ``hypothesis_best_of_10_success``, ``empirical_success``,
+        ``best_of_10_success`` (held-out success rates) with 95% Wilson intervals under the
+        same names plus ``_ci``; ``trials`` (learning), ``pose_source``,
+        ``mean_pose_error_cm`` and ``mean_pose_error_deg`` over every trial (None with true
+        poses), ``pose_failure_share`` (of the failed held-out trials of the learned
+        density, those whose pose estimate was off: see ``pose_failure_share``),
+        ``failure_reasons`` of those trials, ``learning_success``, ``trials_per_minute``,
+        ``empirical_particles``, ``empirical_ess`` and the per-cycle figures.
+    """
+    summary: dict[str, Any] = {
+        "hypothesis_source": experiment.hypothesis,
+        "pose_source": experiment.pose_source,
+    }
+    best = f"_best_of_{BEST_OF}"
+    phases = {
+        "hypothesis_success": "hypothesis",
+        f"hypothesis{best}_success": f"hypothesis{best}",
+        "empirical_success": "empirical",
+        f"best_of_{BEST_OF}_success": f"empirical{best}",
+    }
+    for key, phase in phases.items():
+        rows = [r for r in records if r["phase"] == phase]
+        wins = sum(r["success"] for r in rows)
+        summary[key] = wins / len(rows) if rows else 0.0
+        summary[f"{key}_ci"] = success_interval(wins, len(rows)) if rows else [0.0, 0.0]
+    errors = [r for r in records if "pose_error_m" in r]
+    summary["mean_pose_error_cm"] = (
+        100 * statistics.fmean(r["pose_error_m"] for r in errors) if errors else None
+    )
+    summary["mean_pose_error_deg"] = (
+        statistics.fmean(r["pose_error_deg"] for r in errors) if errors else None
+    )
+    held_out = [r for r in records if r["phase"] == "empirical"]
+    summary["pose_failure_share"] = pose_failure_share(held_out)
+    reasons = [r.get("reason", "") for r in held_out if not r["success"]]
+    summary["failure_reasons"] = {k: reasons.count(k) for k in sorted(set(reasons))}
+    learn_seconds = sum(h.seconds for h in learner.history)
+    empirical = learner.empirical
+    summary.update(
+        trials=len(learner.trials),
+        trials_per_minute=60.0 * len(learner.trials) / learn_seconds,
+        eval_trials_per_measure=experiment.eval_trials,
+        learning_success=float(learner.trials.success.float().mean()),
+        empirical_particles=0 if empirical is None else len(empirical),
+        empirical_ess=0.0 if empirical is None else empirical.effective_sample_size(),
+        cycles=[asdict(h) for h in learner.history],
+    )
+    return summary
+
+
+def success_figure(objects: dict[str, dict[str, Any]], path: Path) -> None:
+    """Bars of held-out success per object, before (hypothesis) and after learning
+    (empirical), sampled and best of ``BEST_OF``, with their 95% intervals."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    keys = [
+        ("hypothesis_success", "hypothesis, sampled"),
+        (f"hypothesis_best_of_{BEST_OF}_success", f"hypothesis, best of {BEST_OF}"),
+        ("empirical_success", "learned, sampled"),
+        (f"best_of_{BEST_OF}_success", f"learned, best of {BEST_OF}"),
+    ]
+    names = list(objects)
+    x = np.arange(len(names))
+    width = 0.8 / len(keys)
+    fig, ax = plt.subplots(figsize=(1.6 * len(names) + 2, 3.6))
+    for i, (key, label) in enumerate(keys):
+        values = np.array([objects[n][key] for n in names])
+        ci = np.array([objects[n][f"{key}_ci"] for n in names]).T
+        ax.bar(x + (i - 1.5) * width, values, width, label=label)
+        ax.errorbar(
+            x + (i - 1.5) * width,
+            values,
+            [values - ci[0], ci[1] - values],
+            fmt="none",
+            ecolor="k",
+            lw=0.8,
+        )
+    ax.set_xticks(x, names)
+    ax.set_ylim(0, 1)
+    ax.set_ylabel("success on held-out placements")
+    ax.legend(fontsize=7, ncol=2, loc="upper left")
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def pose_pictures(
+    kind: str, model: ObjectModel, seeds: Sequence[int], out: Path, env_kwargs: dict[str, Any]
+) -> list[Path]:
+    """Per placement seed, ``out/pose_<seed>.png``: the first camera's image with the
+    model drawn at the estimated pose (left) and at the true pose (right)."""
+    import cv2
+    import numpy as np
+
+    from vistask.envs.grasp_trial import make_trial_env, observation_views
+
+    env = make_trial_env(kind, model, **env_kwargs)
+    paths = []
+    try:
+        for seed in seeds:
+            obs, info = env.reset(seed=seed)
+            view = next(iter(observation_views(obs, env.unwrapped.cameras).values()))
+            panels = [
+                draw_estimate(view, model, torch.as_tensor(info[key]))
+                for key in ("estimated_pose", "object_pose")
+            ]
+            path = out / f"pose_{seed}.png"
+            cv2.imwrite(str(path), np.concatenate(panels, axis=1)[:, :, ::-1])
+            paths.append(path)
+    finally:
+        env.close()
+    return paths
 
 
 def format_table(summary: dict[str, Any]) -> str:
     """A text table of the per-object headline figures."""
-    k = summary["config"]["candidates"]
-    best = f"best of {k}"
+    best = f"best of {BEST_OF}"
     rows = [
         f"{'':<17} {'hypothesis':^21} {'empirical':^21}",
-        f"{'object':<8} {'source':<8} {'sampled':>10} {best:>10} {'sampled':>10} {best:>10} "
-        f"{'trials':>6} {'trials/min':>10} {'seconds':>8}",
+        f"{'object':<8} {'poses':<8} {'sampled':>10} {best:>10} {'sampled':>10} {best:>10} "
+        f"{'trials':>6} {'pose err':>9} {'trials/min':>10}",
     ]
-    for kind, r in summary["objects"].items():
+    for name, r in summary["objects"].items():
+        error = r["mean_pose_error_cm"]
+        error_text = "-" if error is None else f"{error:.2f} cm"
         rows.append(
-            f"{kind:<8} {r['hypothesis_source']:<8} {r['hypothesis_success']:>10.2f} "
-            f"{r['hypothesis_best_of_k_success']:>10.2f} {r['empirical_success']:>10.2f} "
-            f"{r['empirical_best_of_k_success']:>10.2f} {r['trials']:>6d} "
-            f"{r['trials_per_minute']:>10.1f} {r['seconds']:>8.1f}"
-        )
-    return "\n".join(rows)
-
-
-def nbp_grasp_trials(
-    kind: str,
-    density: SE3KDE,
-    n_trials: int,
-    candidates: int = 10,
-    cameras: tuple[str, ...] = ("front", "left", "right"),
-    image_size: int = 256,
-    seed: int = 0,
-    patches=None,
-) -> dict[str, Any]:
-    """Grasp with the pose from NBP instead of the ground truth (the paper's full pipeline).
-
-    Per held-out placement: render the scene, extract its patches, estimate the object pose
-    with NBP on a model learned from the object's patches (``vistask.objects``), compute the
-    instance grasp density by eq. (8) from that pose and ``density``, execute the likeliest
-    of ``candidates`` reachable draws. ``patches`` (object frame) default to
-    ``object_patches_for(kind)``; pass them when several objects run in one process, since
-    the tabletop renderer must not run after a robot environment's GL context was made.
-
-    Returns:
-        ``success_rate``, ``trials``, ``median_translation_error`` (m),
-        ``median_rotation_error`` (degrees, modulo the object's symmetry),
-        ``seconds_per_trial``.
-    """
-    from vistask.envs.grasp_trial import GraspTrialEnv
-    from vistask.envs.tabletop import object_symmetry
-    from vistask.grasp.density import instance_grasp_density
-    from vistask.grasp.learning import draw_reachable
-    from vistask.objects import NBP, ObjectModel
-    from vistask.se3 import identity_poses
-    from vistask.vision import pose_error
-
-    patches = object_patches_for(kind) if patches is None else patches
-    if patches is None:
-        raise ValueError(f"no object patches for {kind!r}")
-    model = ObjectModel.learn(patches, name=kind)
-    nbp = NBP()
-    env = GraspTrialEnv(kind, cameras=cameras, image_size=image_size)
-    generator = torch.Generator().manual_seed(seed)
-    successes, errors_t, errors_r = [], [], []
-    start = time.perf_counter()
-    try:
-        for k in range(n_trials):
-            obs, info = env.reset(seed=EVAL_SEED_BASE + k)
-            scene = env.patches(obs, label=None)
-            # Drop the table plane and everything far from it: NBP gets the clutter above.
-            scene = scene.in_box(torch.tensor([-0.4, -0.4, 0.805]), torch.tensor([0.4, 0.4, 1.3]))
-            estimate = nbp.infer(model, scene, seed=seed + k).pose.float()
-            truth = torch.as_tensor(info["object_pose"], dtype=torch.float32)
-            err_t, err_r = pose_error(estimate, truth, object_symmetry(kind))
-            errors_t.append(float(err_t))
-            errors_r.append(float(err_r))
-            belief = SE3KDE(estimate[None], sigma_t=0.002, sigma_r=0.02)
-            world = instance_grasp_density(belief, density, n=500, generator=generator)
-            _, grasp, _ = draw_reachable(
-                world, identity_poses(1), env.workspace, generator, candidates=candidates
-            )
-            _, reward, _, _, _ = env.step(grasp[0].double().numpy())
-            successes.append(reward)
-    finally:
-        env.close()
-    return {
-        "success_rate": float(torch.tensor(successes).mean()),
-        "trials": n_trials,
-        "median_translation_error": float(torch.tensor(errors_t).median()),
-        "median_rotation_error": float(torch.tensor(errors_r).median()),
-        "seconds_per_trial": (time.perf_counter() - start) / n_trials,
-    }
-
-
-def run_nbp(out: Path, objects: tuple[str, ...], n_trials: int, candidates: int = 10) -> dict:
-    """``nbp_grasp_trials`` with each object's learned ``out/<object>/empirical.pt``.
-
-    Adds an ``nbp`` entry per object to ``out/summary.json`` (when it exists) and returns
-    the results.
-    """
-    all_patches = {kind: object_patches_for(kind) for kind in objects}  # before any robot GL
-    results = {}
-    for kind in objects:
-        density = SE3KDE.load(out / kind / "empirical.pt")
-        results[kind] = nbp_grasp_trials(
-            kind, density, n_trials, candidates, patches=all_patches[kind]
-        )
-    path = out / "summary.json"
-    if path.exists():
-        summary = json.loads(path.read_text())
-        for kind, r in results.items():
-            summary["objects"].setdefault(kind, {})["nbp"] = r
-        write_summary(path, summary)
-    return results
-
-
-def format_nbp_table(results: dict[str, dict[str, Any]]) -> str:
-    """A text table of ``run_nbp`` results."""
-    rows = [f"{'object':<8} {'NBP success':>11} {'trials':>6} {'t err (m)':>9} {'r err (deg)':>11}"]
-    for kind, r in results.items():
-        rows.append(
-            f"{kind:<8} {r['success_rate']:>11.2f} {r['trials']:>6d} "
-            f"{r['median_translation_error']:>9.3f} {r['median_rotation_error']:>11.1f}"
+            f"{name:<8} {r['pose_source']:<8} {r['hypothesis_success']:>10.2f} "
+            f"{r[f'hypothesis_best_of_{BEST_OF}_success']:>10.2f} "
+            f"{r['empirical_success']:>10.2f} {r[f'best_of_{BEST_OF}_success']:>10.2f} "
+            f"{r['trials']:>6d} {error_text:>9} {r['trials_per_minute']:>10.1f}"
         )
     return "\n".join(rows)

@@ -16,7 +16,9 @@ so its values are 10-100 times smaller than those of the later, concentrated pro
 The simulator (or robot) is reached through a ``TrialRunner``: anything with ``num_envs``,
 ``reset(seeds) -> (B, 7) object poses`` and ``execute((B, 7) world grasps) -> ((B,) bool
 successes, dict of (B,) diagnostics)``; ``vistask.envs.grasp_trial.VectorGraspTrials`` is
-one for the robosuite arm.
+one for the robosuite arm. The poses ``reset`` gives are those the robot acts on: its own
+estimates in the paper's setting, so that a grasp is recorded relative to the object *as
+estimated* and pose errors become part of what the density learns.
 """
 
 from __future__ import annotations
@@ -41,7 +43,7 @@ class TrialRunner(Protocol):
     num_envs: int
 
     def reset(self, seeds: Sequence[int]) -> torch.Tensor:
-        """Start ``num_envs`` trials; returns (B, 7) object poses in the world."""
+        """Start ``num_envs`` trials; returns the (B, 7) world object poses to act on."""
         ...
 
     def execute(self, grasps: torch.Tensor) -> tuple[torch.Tensor, dict[str, Any]]:
@@ -262,8 +264,6 @@ class GraspLearner:
         workspace: reachability filter for the drawn grasps (None: no filter).
         c_rel: the weight offset c as a fraction of the mean proposal density at the trials.
         sigma_t, sigma_r: bandwidth of the empirical density (default: the hypothesis's).
-        pose_fn: optional map from the (B, 7) true object poses to the (B, 7) poses used to
-            place the grasps (e.g. NBP estimates); default the true poses (ablation).
     """
 
     def __init__(
@@ -273,7 +273,6 @@ class GraspLearner:
         c_rel: float = 1.0,
         sigma_t: float | None = None,
         sigma_r: float | None = None,
-        pose_fn: Callable[[torch.Tensor], torch.Tensor] | None = None,
     ) -> None:
         if c_rel < 0:
             raise ValueError(f"c_rel must be non-negative, got {c_rel}")
@@ -282,7 +281,6 @@ class GraspLearner:
         self.c_rel = c_rel
         self.sigma_t = hypothesis.sigma_t if sigma_t is None else sigma_t
         self.sigma_r = hypothesis.sigma_r if sigma_r is None else sigma_r
-        self.pose_fn = pose_fn
         self.proposal = hypothesis
         self.proposals: list[SE3KDE] = []  # the density each cycle drew from
         self.trials = Trials()
@@ -302,6 +300,7 @@ class GraspLearner:
         seeds: Sequence[int],
         generator: torch.Generator | None = None,
         progress: Callable[[int], None] | None = None,
+        records: list[dict[str, Any]] | None = None,
     ) -> CycleStats:
         """Execute one cycle of ``n_trials`` grasps drawn from the current proposal.
 
@@ -311,6 +310,7 @@ class GraspLearner:
             seeds: at least as many object-placement seeds as trials.
             generator: random generator for drawing grasps.
             progress: called with the number of trials finished after each batch.
+            records: if given, one record per trial is appended (see ``run_trials``).
 
         Returns:
             the cycle's figures; the proposal is replaced by the new empirical density.
@@ -323,8 +323,8 @@ class GraspLearner:
             seeds,
             self.workspace,
             generator,
-            self.pose_fn,
             progress,
+            records=records,
         )
         self.trials.add(grasps, success, len(self.proposals))
         self.proposals.append(self.proposal)
@@ -405,6 +405,12 @@ def trial_seeds(generator: torch.Generator | None, n: int) -> list[int]:
     return [base + k for k in range(n)]
 
 
+RESET_FIELDS = ("object_pose", "estimated_pose", "pose_error_m", "pose_error_deg")
+STEP_FIELDS = ("reason", "contact", "grasped", "lift_height")
+"""Diagnostics of a runner's last reset (``last_reset_info``) and last execution
+(``last_info``) that ``run_trials`` copies into its per-trial records, where present."""
+
+
 def run_trials(
     density: SE3KDE,
     runner: TrialRunner,
@@ -412,9 +418,9 @@ def run_trials(
     seeds: Sequence[int],
     workspace: Workspace | None = None,
     generator: torch.Generator | None = None,
-    pose_fn: Callable[[torch.Tensor], torch.Tensor] | None = None,
     progress: Callable[[int], None] | None = None,
     candidates: int = 1,
+    records: list[dict[str, Any]] | None = None,
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """Execute grasps drawn from an object-frame density on fresh object placements.
 
@@ -431,9 +437,11 @@ def run_trials(
         workspace: reachability filter (unreachable draws are redrawn; if none is found
             the last draw is executed and normally fails).
         generator: random generator for drawing grasps.
-        pose_fn: maps true (B, 7) object poses to the poses the grasps are placed with.
         progress: called with the number of trials finished after each batch.
         candidates: see ``draw_reachable`` (1: plain samples).
+        records: if given, one dict per trial is appended: ``seed``, ``grasp`` (object
+            frame), ``world_grasp``, ``reachable``, ``success``, and the runner's
+            diagnostics named in ``RESET_FIELDS`` and ``STEP_FIELDS``.
 
     Returns:
         (N, 7) object-frame grasps as drawn (relative to the pose they were placed with),
@@ -449,8 +457,7 @@ def run_trials(
         n = min(B, n_trials - start)
         batch = list(seeds[start : start + n])
         batch += batch[-1:] * (B - n)
-        truth = runner.reset(batch).to(density.points)
-        placed = truth if pose_fn is None else pose_fn(truth).to(truth)
+        placed = runner.reset(batch).to(density.points)
         draws = [
             draw_reachable(
                 density,
@@ -462,15 +469,38 @@ def run_trials(
             for j in range(B)
         ]
         local, world, ok = (torch.cat(parts) for parts in zip(*draws, strict=True))
-        outcome, _ = runner.execute(world)
-        # Recorded relative to the pose the robot believed (as a robot would); with
+        outcome, info = runner.execute(world)
+        # Recorded relative to the pose the robot acted on (as a robot would); with
         # ground-truth poses this is the grasp relative to the object itself.
         grasps.append(local[:n])
         success.append(outcome.bool().cpu()[:n])
         reach.append(ok.cpu()[:n])
+        if records is not None:
+            reset_info = getattr(runner, "last_reset_info", {})
+            for j in range(n):
+                record = {
+                    "seed": int(batch[j]),
+                    "grasp": local[j].tolist(),
+                    "world_grasp": world[j].tolist(),
+                    "reachable": bool(ok[j]),
+                    "success": bool(outcome[j]),
+                }
+                record.update(_fields(reset_info, RESET_FIELDS, j))
+                record.update(_fields(info, STEP_FIELDS, j))
+                records.append(record)
         if progress is not None:
             progress(n)
     return torch.cat(grasps), torch.cat(success), torch.cat(reach)
+
+
+def _fields(info: dict[str, Any], keys: Sequence[str], j: int) -> dict[str, Any]:
+    """Entry ``j`` of each of ``keys`` in a batched info dict, as plain Python values."""
+    out = {}
+    for key in keys:
+        if key in info:
+            value = info[key][j]
+            out[key] = value.tolist() if hasattr(value, "tolist") else value
+    return out
 
 
 def evaluate_density(
@@ -482,11 +512,12 @@ def evaluate_density(
     generator: torch.Generator | None = None,
     progress: Callable[[int], None] | None = None,
     candidates: int = 1,
+    records: list[dict[str, Any]] | None = None,
 ) -> dict[str, float]:
     """Success rate of grasps drawn from ``density`` on the placements ``seeds``.
 
     ``candidates`` > 1 executes, per placement, the likeliest of that many reachable draws
-    (see ``draw_reachable``); 1 executes plain samples.
+    (see ``draw_reachable``); 1 executes plain samples. ``records``: see ``run_trials``.
 
     Returns:
         ``success_rate``, ``trials``, ``reachable_rate``, ``seconds``, ``trials_per_minute``.
@@ -501,6 +532,7 @@ def evaluate_density(
         generator,
         progress=progress,
         candidates=candidates,
+        records=records,
     )
     seconds = time.perf_counter() - start
     return {

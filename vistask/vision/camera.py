@@ -253,3 +253,36 @@ class RGBDView:
         pixels = pixel_grid(self.camera.height, self.camera.width)[valid]
         points = self.camera.backproject(pixels, self.depth[valid].float())
         return points.float(), self.rgb[valid].float() / 255.0
+
+    def with_depth_noise(
+        self,
+        sigma: float,
+        edge_dropout: float = 0.5,
+        jump: float = 0.01,
+        generator: torch.Generator | None = None,
+    ) -> RGBDView:
+        """This view as a depth sensor would give it: Gaussian noise of ``sigma`` metres on
+        every depth, and pixels at depth edges (a step above ``jump`` to a 4-neighbour,
+        where stereo and time-of-flight sensors fail) dropped (NaN) with probability
+        ``edge_dropout``.
+
+        Raises:
+            ValueError: sigma negative, or edge_dropout outside [0, 1].
+        """
+        if sigma < 0 or not 0 <= edge_dropout <= 1:
+            raise ValueError(
+                f"need sigma >= 0 and edge_dropout in [0, 1], got {sigma}, {edge_dropout}"
+            )
+        depth = self.depth.float()
+        far = torch.where(torch.isfinite(depth), depth, torch.full_like(depth, 1e6))
+        step = torch.zeros_like(depth, dtype=torch.bool)
+        dv = (far[1:] - far[:-1]).abs() > jump
+        dh = (far[:, 1:] - far[:, :-1]).abs() > jump
+        step[1:] |= dv
+        step[:-1] |= dv
+        step[:, 1:] |= dh
+        step[:, :-1] |= dh
+        noise = sigma * torch.randn(depth.shape, generator=generator)
+        drop = step & (torch.rand(depth.shape, generator=generator) < edge_dropout)
+        noisy = torch.where(drop, torch.full_like(depth, float("nan")), depth + noise)
+        return RGBDView(self.rgb, noisy, self.camera, self.segmentation)

@@ -1,0 +1,296 @@
+"""Objects for the tabletop scenes and grasp trials, named by robosuite class or MJCF file.
+
+``object_spec(name)`` resolves a name to an ``ObjectSpec``:
+
+- a preset: a robosuite object with fixed sizes ("box", "cube", "hammer"; add your own with
+  ``register_object``);
+- a robosuite object class, as its class name or in snake case without ``Object``
+  ("CanObject", "can", "bottle", "lemon", "round_nut", ...);
+- a MuJoCo XML file in robosuite's object format (``*.xml``): a ``<body name="object">``
+  holding the geoms, and the sites ``bottom_site``, ``top_site`` and
+  ``horizontal_radius_site`` next to it, as in robosuite's ``models/assets/objects``.
+
+Objects that robosuite generates at random sizes (boxes, cylinders) are built with a fixed
+generator, so every process builds the same object. The shape symmetry of robosuite's objects
+is known here (it only scores pose errors); other objects have none unless given.
+
+Poses are (7,) ``[tx, ty, tz, qx, qy, qz, qw]`` (roma XYZW), object frame -> world.
+"""
+
+from __future__ import annotations
+
+import inspect
+import math
+import re
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import roma
+import torch
+from torch import Tensor
+
+from vistask.vision import Symmetry
+
+# Distractors of tabletop scenes and grasp trials when none are named.
+DEFAULT_DISTRACTORS = ("cereal", "milk", "bread", "hammer", "can", "box")
+
+
+@dataclass(frozen=True)
+class ObjectSpec:
+    """An object kind.
+
+    Attributes:
+        name: its name in scenes, results and file names.
+        make: builds the robosuite object, given the MuJoCo name of the instance.
+        symmetry: rotational symmetry of its shape, in its body frame.
+        rest: (4,) XYZW rotation that stands it in its natural rest pose on the table.
+        can_tip: whether it may be laid on a side (not round objects, which roll away).
+        shape_symmetry: the symmetry of its shape alone where its texture breaks it (bread
+            turned by half a turn), or None when that is ``symmetry``.
+    """
+
+    name: str
+    make: Callable[[str], object]
+    symmetry: Symmetry
+    rest: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 1.0)
+    can_tip: bool = True
+    shape_symmetry: Symmetry | None = None
+
+
+def _robosuite_classes() -> dict[str, type]:
+    import robosuite.models.objects as objects
+
+    return {
+        name: cls
+        for name, cls in vars(objects).items()
+        if name.endswith("Object") and isinstance(cls, type) and not inspect.isabstract(cls)
+    }
+
+
+def _fixed(cls: type, **kwargs) -> Callable[[str], object]:
+    """A builder of ``cls`` that passes a seeded generator where robosuite samples sizes, so
+    that every build of one kind, in any process, gives the same object."""
+    seeded = "rng" in inspect.signature(cls.__init__).parameters
+
+    def make(name: str):
+        extra = {"rng": np.random.default_rng(0)} if seeded else {}
+        return cls(name, **kwargs, **extra)
+
+    return make
+
+
+# Shape symmetries of robosuite's objects; textures (can label, cereal print) are ignored,
+# as in the paper's error measure. Milk carton and cereal box render identically after half
+# a turn about z (same print front and back; checked on rendered images).
+_SYMMETRIES: dict[str, Callable[[], Symmetry]] = {
+    "CanObject": Symmetry.about_axis,
+    "BottleObject": Symmetry.about_axis,
+    "CylinderObject": Symmetry.about_axis,
+    "MilkObject": lambda: Symmetry.about_axis((0.0, 0.0, 1.0), order=2),
+    "CerealObject": Symmetry.box,
+    "BoxObject": Symmetry.box,
+}
+
+# Shapes whose texture alone tells poses apart that the shape does not: only the crust tells
+# a loaf of bread from the loaf turned by half a turn about its z.
+_SHAPE_ONLY: dict[str, Callable[[], Symmetry]] = {
+    "BreadObject": lambda: Symmetry.about_axis((0.0, 0.0, 1.0), order=2),
+}
+
+_PRESETS: dict[str, ObjectSpec] = {}
+
+
+def register_object(spec: ObjectSpec) -> None:
+    """Make ``spec`` known by its name to ``object_spec`` (in this process only: processes
+    that run trials or scenes resolve names themselves, so give them files or classes)."""
+    _PRESETS[spec.name] = spec
+
+
+def _preset(name: str, cls_name: str, symmetry: Symmetry | None = None, **kwargs) -> None:
+    def make(instance: str):
+        return _fixed(_robosuite_classes()[cls_name], **kwargs)(instance)
+
+    sym = symmetry or _SYMMETRIES.get(cls_name, Symmetry.none)()
+    register_object(ObjectSpec(name, make, sym, can_tip=sym.axis is None))
+
+
+_preset("box", "BoxObject", size=(0.045, 0.03, 0.02), rgba=(0.15, 0.45, 0.8, 1.0))
+_preset("cube", "BoxObject", size=(0.021, 0.021, 0.021), rgba=(0.8, 0.15, 0.1, 1.0))
+# Fixed sizes: robosuite samples the hammer's geometry at random. robosuite builds it standing
+# on its handle; ``rest`` lays it flat.
+register_object(
+    ObjectSpec(
+        "hammer",
+        lambda instance: _fixed(
+            _robosuite_classes()["HammerObject"],
+            handle_radius=0.016,
+            handle_length=0.16,
+            handle_density=150.0,
+            handle_friction=4.0,
+        )(instance),
+        Symmetry.none(),
+        rest=(0.5, -0.5, 0.5, -0.5),
+        can_tip=False,
+    )
+)
+
+
+def _class_name(name: str) -> str:
+    """ "round_nut" -> "RoundNutObject"; "CanObject" stays."""
+    if name.endswith("Object"):
+        return name
+    return "".join(part.capitalize() for part in re.split(r"[_\-\s]+", name)) + "Object"
+
+
+def _mjcf_spec(path: Path) -> ObjectSpec:
+    from robosuite.models.objects import MujocoXMLObject
+
+    if not path.is_file():
+        raise ValueError(f"no MJCF file at {path}")
+    fname = str(path.resolve())
+    name = re.sub(r"\W", "_", path.stem)
+
+    def make(instance: str):
+        return MujocoXMLObject(
+            fname, instance, joints=[{"type": "free", "damping": "0.0005"}], obj_type="all"
+        )
+
+    return ObjectSpec(name, make, Symmetry.none())
+
+
+def object_spec(name: str | Path | ObjectSpec) -> ObjectSpec:
+    """The ``ObjectSpec`` of a preset, a robosuite object class or an MJCF file (see the
+    module docstring).
+
+    Raises:
+        ValueError: nothing of that name, or a missing file.
+    """
+    if isinstance(name, ObjectSpec):
+        return name
+    text = str(name)
+    if text.endswith(".xml"):
+        return _mjcf_spec(Path(text))
+    if text in _PRESETS:
+        return _PRESETS[text]
+    classes = _robosuite_classes()
+    cls_name = _class_name(text)
+    if cls_name not in classes or cls_name in ("MujocoObject", "MujocoXMLObject"):
+        raise ValueError(
+            f"unknown object {text!r}: name a preset {sorted(_PRESETS)}, a robosuite object "
+            "class (e.g. 'can', 'LemonObject') or an MJCF file ending in .xml"
+        )
+    sym = _SYMMETRIES.get(cls_name, Symmetry.none)()
+    snake = re.sub(r"(?<!^)(?=[A-Z])", "_", cls_name.removesuffix("Object")).lower()
+    shape = _SHAPE_ONLY.get(cls_name)
+    return ObjectSpec(
+        snake,
+        _fixed(classes[cls_name]),
+        sym,
+        can_tip=sym.axis is None,
+        shape_symmetry=None if shape is None else shape(),
+    )
+
+
+def object_name(name: str | Path | ObjectSpec) -> str:
+    """The name results and files use for an object (a file's stem for MJCF files)."""
+    return object_spec(name).name
+
+
+def rest_rotation(
+    spec: ObjectSpec, rng: np.random.Generator | None = None, tip_probability: float = 0.0
+) -> Tensor:
+    """(3, 3) float64 rest orientation, laid on a random side (+-90 degrees about its x or y
+    axis) with ``tip_probability`` when the object may tip. Physics then settles it where
+    it rests."""
+    rot = roma.unitquat_to_rotmat(torch.tensor(spec.rest, dtype=torch.float64))
+    if rng is not None and spec.can_tip and rng.uniform() < tip_probability:
+        axis = np.eye(3)[rng.integers(0, 2)] * rng.choice([-1.0, 1.0]) * (math.pi / 2)
+        rot = rot @ roma.rotvec_to_rotmat(torch.from_numpy(axis))
+    return rot
+
+
+def yaw_rotation(yaw: float) -> Tensor:
+    """(3, 3) float64 rotation by ``yaw`` radians about the world's z."""
+    return roma.rotvec_to_rotmat(torch.tensor([0.0, 0.0, yaw], dtype=torch.float64))
+
+
+def box_corners(bounds: np.ndarray | Tensor, rot: Tensor) -> Tensor:
+    """(8, 3) corners of the (2, 3) object-frame box ``bounds`` turned by ``rot`` (3, 3)."""
+    lo, hi = torch.as_tensor(np.asarray(bounds), dtype=torch.float64)
+    grid = torch.meshgrid(*torch.stack([lo, hi], dim=1), indexing="ij")
+    return torch.stack(grid, -1).reshape(-1, 3) @ rot.T
+
+
+def drop_pose(bounds, rot: Tensor, xy: Sequence[float], floor_z: float) -> Tensor:
+    """(7,) float64 pose at ``xy`` turned by ``rot``, its lowest corner 3 mm above
+    ``floor_z``."""
+    corners = box_corners(bounds, rot)
+    z = floor_z + 0.003 - float(corners[:, 2].min())
+    t = torch.tensor([float(xy[0]), float(xy[1]), z], dtype=torch.float64)
+    return torch.cat([t, roma.rotmat_to_unitquat(rot)])
+
+
+def place_apart(
+    rng: np.random.Generator,
+    radii: Sequence[float],
+    spans: Sequence[float],
+    gap: float,
+    placed: Sequence[tuple[np.ndarray, float]] = (),
+) -> list[np.ndarray]:
+    """Random (2,) positions, the i-th uniform in +-``spans[i]``, discs of ``radii`` at least
+    ``gap`` apart from each other and from the ``placed`` (position, radius) discs.
+
+    Raises:
+        RuntimeError: no room found in 500 draws for one of them.
+    """
+    return _place(
+        rng, radii, gap, placed, [lambda span=span: rng.uniform(-span, span, 2) for span in spans]
+    )
+
+
+def place_occluders(
+    rng: np.random.Generator,
+    radii: Sequence[float],
+    gap: float,
+    target: tuple[np.ndarray, float],
+    towards: Sequence[float],
+) -> list[np.ndarray]:
+    """Random (2,) positions of discs of ``radii`` between the ``target`` (position,
+    radius) disc and the point ``towards`` (a camera's x, y): just clear of the target (up to
+    12 cm farther) and at most half a target-and-disc width sideways, ``gap`` apart.
+
+    Raises:
+        RuntimeError: no room found in 500 draws for one of them.
+    """
+    centre, r0 = target
+    ahead = np.asarray(towards, dtype=float) - centre
+    ahead /= max(float(np.linalg.norm(ahead)), 1e-9)
+    side = np.array([-ahead[1], ahead[0]])
+
+    def draw(r: float) -> np.ndarray:
+        forward = r0 + r + gap + rng.uniform(0.0, 0.12)
+        return centre + ahead * forward + side * rng.uniform(-0.5, 0.5) * (r0 + r)
+
+    return _place(rng, radii, gap, [target], [lambda r=r: draw(r) for r in radii])
+
+
+def _place(rng, radii, gap, placed, draws) -> list[np.ndarray]:
+    taken = list(placed)
+    out = []
+    for radius, draw in zip(radii, draws, strict=True):
+        for _ in range(500):
+            xy = draw()
+            if all(np.linalg.norm(xy - c) > radius + r + gap for c, r in taken):
+                break
+        else:
+            raise RuntimeError("could not place the objects apart; widen their range")
+        taken.append((xy, radius))
+        out.append(xy)
+    return out
+
+
+def footprint_radius(bounds, rot: Tensor) -> float:
+    """Radius of the table area the box ``bounds`` turned by ``rot`` may cover."""
+    return float(box_corners(bounds, rot)[:, :2].norm(dim=-1).max())

@@ -1,0 +1,128 @@
+"""Objects named by robosuite class or MJCF file: resolution, scenes whose seeds do not depend
+on the list of objects, harder grasp-trial placements, and a new object given only as an MJCF
+file going through pose estimation and grasp learning."""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+
+import numpy as np
+import pytest
+import roma
+import torch
+
+pytest.importorskip("robosuite")
+
+from vistask.envs.objects import object_name, object_spec
+from vistask.envs.tabletop import TABLE_TOP_Z, make_scene, object_patches, tabletop_world
+
+MJCF = str(Path(__file__).parent / "data" / "l_block.xml")
+
+
+def test_objects_resolve_by_preset_class_or_file() -> None:
+    assert object_name("CanObject") == object_name("can") == "can"
+    assert object_name("round_nut") == "round_nut" and object_spec("RoundNutObject").can_tip
+    assert object_spec("can").symmetry.axis is not None and not object_spec("can").can_tip
+    assert object_name(MJCF) == "l_block"
+    assert object_spec("lemon").make("lemon_1").name == "lemon_1"
+    with pytest.raises(ValueError, match="robosuite object class"):
+        object_spec("teapot")
+    with pytest.raises(ValueError, match="no MJCF file"):
+        object_spec("/nowhere/mug.xml")
+
+
+def test_a_scene_does_not_depend_on_the_other_objects_a_world_holds() -> None:
+    alone = tabletop_world(["milk"]).generate(5, "milk", 0, cameras=())
+    among = tabletop_world(["milk", "can", "box", "lemon"]).generate(
+        5, "milk", 0, cameras=(), distractors=()
+    )
+    # The same placement, settled in a model with other (parked) bodies: equal up to the
+    # contact solver's tolerance.
+    torch.testing.assert_close(alone.poses, among.poses, atol=2e-3, rtol=0)
+    other = tabletop_world(["milk"]).generate(6, "milk", 0, cameras=())
+    assert (other.poses - alone.poses).abs().max() > 0.01
+
+
+def test_pose_benchmark_scene_seeds_do_not_depend_on_the_object_list() -> None:
+    from vistask.experiments.pose import PoseBenchmark
+
+    one = PoseBenchmark(objects=("milk",), conditions=("one_camera",))
+    three = PoseBenchmark(objects=("can", "box", "milk"), conditions=("clutter", "one_camera"))
+    assert one.scene_seed("milk", "one_camera", 3) == three.scene_seed("milk", "one_camera", 3)
+    seeds = {
+        three.scene_seed(k, c, i)
+        for k in three.objects
+        for c in three.conditions
+        for i in range(10)
+    }
+    assert len(seeds) == 60  # and no two scenes share one
+
+
+def test_tipped_objects_rest_on_a_side() -> None:
+    scene = make_scene(3, target="box", n_distractors=0, cameras=(), tip_probability=1.0)
+    up = roma.unitquat_to_rotmat(scene.target_pose[3:])[:, 2]  # the box's z in the world
+    assert abs(float(up[2])) < 0.05  # lying: its z axis is horizontal
+    lo, hi = scene.bounds[0]
+    corners = torch.stack(torch.meshgrid(*torch.stack([lo, hi], 1), indexing="ij"), -1)
+    z = corners.reshape(-1, 3) @ roma.unitquat_to_rotmat(scene.target_pose[3:]).T
+    assert abs(float(z[:, 2].min() + scene.target_pose[2]) - TABLE_TOP_Z) < 0.005
+
+
+def test_an_mjcf_object_is_learned_and_found_in_cluttered_scenes() -> None:
+    from vistask.experiments.pose import SUCCESS_ROTATION_DEG, SUCCESS_TRANSLATION_M, scene_patches
+    from vistask.objects import NBP, ObjectModel
+    from vistask.vision import pose_error
+
+    model = ObjectModel.learn(object_patches(MJCF, voxel=0.004), name="l_block")
+    for seed in range(2):
+        scene = make_scene(seed, MJCF, n_distractors=2, cameras=("front", "left", "top"))
+        assert scene.target == "l_block" and len(scene.objects) == 3
+        estimate = NBP().infer(model, scene_patches(scene), seed=seed).pose
+        t, r = pose_error(estimate, scene.target_pose, scene.symmetry())
+        assert t < SUCCESS_TRANSLATION_M and r < SUCCESS_ROTATION_DEG, (seed, t, r)
+
+
+def test_grasp_trials_spread_tip_and_add_distractors() -> None:
+    from vistask.envs.grasp_trial import GraspTrialEnv
+
+    env = GraspTrialEnv(
+        "box", n_distractors=2, cameras=("top",), image_size=96, tip_probability=1.0
+    )
+    try:
+        xy, lying = [], []
+        for seed in range(6):
+            obs, info = env.reset(seed=seed)
+            assert info["distractor_poses"].shape == (2, 7)
+            assert (obs["top_segmentation"] == 0).any()
+            assert (info["distractor_poses"][:, 2] > TABLE_TOP_Z).all()  # on the table
+            z_axis = roma.unitquat_to_rotmat(torch.as_tensor(info["object_pose"][3:]))[:, 2]
+            lying.append(abs(float(z_axis[2])) < 0.1)
+            xy.append(info["object_pose"][:2])
+        assert all(lying)
+        assert np.abs(np.array(xy)).max() > 0.06  # beyond the old +-6 cm square
+    finally:
+        env.close()
+
+
+@pytest.mark.slow
+def test_an_mjcf_object_goes_through_grasp_learning_with_its_own_pose_estimates(tmp_path) -> None:
+    from vistask.experiments.grasps import GraspExperiment
+
+    experiment = GraspExperiment(
+        objects=(MJCF,), cycles=1, trials_per_cycle=2, eval_trials=1, num_envs=1, n_distractors=1
+    )
+    summary = experiment.run(tmp_path, pictures=1)
+    result = summary["objects"]["l_block"]
+    assert result["pose_source"] == "estimate" and result["trials"] == 2
+    assert result["mean_pose_error_cm"] is not None and result["mean_pose_error_cm"] >= 0
+    for key in ("hypothesis_success", "empirical_success", "best_of_10_success"):
+        assert 0.0 <= result[key] <= 1.0 and len(result[f"{key}_ci"]) == 2
+    records = [json.loads(line) for line in (tmp_path / "l_block" / "trials.jsonl").open()]
+    assert len(records) == 2 + 4 * 1 - (0 if result["empirical_particles"] else 2)
+    assert {"pose_error_m", "estimated_pose", "object_pose", "reason", "grasp"} <= set(records[0])
+    assert (tmp_path / "l_block" / "model.pt").exists()
+    assert (tmp_path / "l_block" / "pose_9000000.png").exists()
