@@ -102,7 +102,7 @@ def test_parallel_trials_in_processes() -> None:
         assert poses.shape == (2, 7)
         bounds = runner.object_bounds
         grasps = np.stack([top_down_grasp(p.double().numpy(), bounds) for p in poses])
-        grasps[1, 0] += 0.25  # one far miss
+        grasps[1, 1] += 0.2  # one far miss
         success, info = runner.execute(grasps)
         assert success.tolist() == [True, False]
         assert list(info["reason"]) == ["success", "missed"]

@@ -319,6 +319,11 @@ class GraspExperiment:
         if writer is not None:
             for key in ("hypothesis_success", "empirical_success", f"best_of_{BEST_OF}_success"):
                 writer.add_scalar(f"{name}/{key}", summary[key], 0)
+            for step, r in enumerate(records):  # every trial, in the order they ran
+                writer.add_scalar(f"{name}/trials/success", float(r["success"]), step)
+                if "pose_error_m" in r:
+                    writer.add_scalar(f"{name}/trials/pose_error_cm", 100 * r["pose_error_m"], step)
+                    writer.add_scalar(f"{name}/trials/pose_error_deg", r["pose_error_deg"], step)
         return summary
 
     def run(self, out: Path, pictures: int = 3) -> dict[str, Any]:
