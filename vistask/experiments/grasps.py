@@ -26,7 +26,6 @@ from pathlib import Path
 from typing import Any
 
 import torch
-from scipy.stats import binomtest
 
 from vistask.checks import check_at_least, check_positive
 from vistask.experiments.pose import (
@@ -35,6 +34,7 @@ from vistask.experiments.pose import (
     draw_estimate,
     learn_object_model,
 )
+from vistask.experiments.statistics import success_interval
 from vistask.grasp.hypothesis import (
     demonstration_density,
     feature_hypothesis_density,
@@ -79,12 +79,6 @@ def hypothesis_density(
         teacher = scripted_teacher_grasps(bounds)
         return demonstration_density(teacher, sigma_t=sigma_t, sigma_r=sigma_r, generator=generator)
     raise ValueError(f"unknown hypothesis source {source!r}; use 'feature' or 'demo'")
-
-
-def success_interval(successes: int, trials: int) -> list[float]:
-    """95% Wilson interval [low, high] of a success rate."""
-    ci = binomtest(successes, trials).proportion_ci(method="wilson")
-    return [float(ci.low), float(ci.high)]
 
 
 def pose_failure_share(records: Sequence[dict[str, Any]]) -> float | None:

@@ -25,10 +25,10 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from scipy.stats import binomtest
 
 from vistask.envs.objects import DEFAULT_DISTRACTORS, object_name, object_spec
 from vistask.envs.scene import CAMERAS, LEARNING_CAMERAS, TABLE_TOP_Z, TEST_CAMERAS
+from vistask.experiments.statistics import success_interval
 from vistask.objects import NBP, ObjectModel, Open3DRegistration
 from vistask.objects.registration import view_cloud
 from vistask.parallel import Outcome, map_runs
@@ -571,12 +571,12 @@ def _errors(pose: torch.Tensor | None, truth: torch.Tensor, symmetry) -> dict:
 
 def _stats(rows: list[dict], key: str = "success") -> dict:
     wins, n = sum(r[key] for r in rows), len(rows)
-    ci = binomtest(wins, n).proportion_ci(method="wilson")
+    low, high = success_interval(wins, n)
     return {
         "n_scenes": n,
         "success": wins / n,
-        "ci_low": float(ci.low),
-        "ci_high": float(ci.high),
+        "ci_low": low,
+        "ci_high": high,
         "median_translation_error_m": statistics.median(r["translation_error_m"] for r in rows),
         "median_rotation_error_deg": statistics.median(r["rotation_error_deg"] for r in rows),
         "seconds_per_scene": statistics.fmean(r["seconds"] for r in rows),

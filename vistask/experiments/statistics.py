@@ -276,3 +276,9 @@ def plot_improvement(path: Path, probabilities: Mapping[str, list[float]]) -> No
         figsize=(5, 0.5 + 0.45 * len(probabilities)),
     )
     _save(ax.figure, path)
+
+
+def success_interval(successes: int, trials: int) -> list[float]:
+    """95% Wilson interval [low, high] of a success rate of ``successes`` in ``trials``."""
+    ci = stats.binomtest(successes, trials).proportion_ci(method="wilson")
+    return [float(ci.low), float(ci.high)]
