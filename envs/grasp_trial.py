@@ -125,6 +125,7 @@ class _GraspScene(ManipulationEnv):
 
     def __init__(self, kinds: Sequence[str], cameras: Sequence[str], **kwargs: Any) -> None:
         self.kinds = list(kinds)
+        self.specs = [object_spec(k) for k in self.kinds]
         self.extra_cameras = list(cameras)
         super().__init__(**kwargs)
 
@@ -135,8 +136,7 @@ class _GraspScene(ManipulationEnv):
         arena = table_arena()
         arena.set_origin([0, 0, 0])
         add_cameras(arena, [CAMERAS[name] for name in self.extra_cameras])
-        specs = [object_spec(k) for k in self.kinds]
-        self.objects = [spec.make(spec.name) for spec in specs]
+        self.objects = [spec.make(spec.name) for spec in self.specs]
         self.model = ManipulationTask(
             mujoco_arena=arena,
             mujoco_robots=[r.robot_model for r in self.robots],
@@ -230,7 +230,6 @@ class GraspTrialEnv(gym.Env):
         self.lift_threshold = lift_threshold
         self.reach_tolerance = reach_tolerance
         self.render_mode = render_mode
-        self._specs = [target, *(object_spec(k) for k in others)] if n_distractors else [target]
 
         config = load_composite_controller_config(robot="Panda")
         arm = config["body_parts"]["right"]
@@ -322,7 +321,7 @@ class GraspTrialEnv(gym.Env):
                 self._set_object(i, self._parking[i], np.array([0.0, 0.0, 0.0, 1.0]))
         rots = [
             yaw_rotation(rng.uniform(0.0, 2 * math.pi))
-            @ rest_rotation(self._specs[i], rng, self.tip_probability)
+            @ rest_rotation(self._scene.specs[i], rng, self.tip_probability)
             for i in active
         ]
         radii = [footprint_radius(self._bounds[i], r) for i, r in zip(active, rots, strict=True)]

@@ -59,7 +59,8 @@ class Condition:
         distractors: distractor objects on the table.
         lookalikes: draw the distractors from the ``distractors`` objects of
             ``LOOKALIKE_POOL`` nearest to the target in mean colour.
-        occluders: place the distractors between the target and the first camera.
+        occluders: stand the two tallest distractors between the target and the first
+            camera (``vistask.envs.objects.place_occluders``).
         max_visible: draw scenes (seeds derived from the scene's) until the target shows
             at most this fraction of its pixels in every camera (and at least
             ``MIN_VISIBLE`` in one); None takes the first draw.
@@ -67,9 +68,8 @@ class Condition:
             edges drop out with probability 0.5.
         relight: change the lighting at random.
         tip_probability: chance that an object that may tip lies on a side.
-        distractor_range: distractors' x and y are uniform in +-this (metres) around the
-            table centre, or around their spot between target and camera (``occluders``);
-            the target's in +-0.08.
+        distractor_range: the other distractors' x and y are uniform in +-this (metres)
+            around the table centre; the target's in +-0.08.
         max_tries: draws at most; then the most occluded draw is kept.
     """
 
@@ -193,13 +193,17 @@ def learn_object_model(
     patch per ``voxel``."""
     from vistask.envs.tabletop import object_patches
 
-    spec = object_spec(kind)
-    sides = (False, True) if tipped and spec.can_tip else (False,)
     parts = [
         object_patches(kind, n_rotations, LEARNING_CAMERAS, image_size, side, extractor, voxel)
-        for side in sides
+        for side in _rest_sides(kind, tipped)
     ]
-    return ObjectModel.learn(Patches.cat(parts), spec.name)
+    return ObjectModel.learn(Patches.cat(parts), object_name(kind))
+
+
+def _rest_sides(kind: str, tipped: bool) -> tuple[bool, ...]:
+    """The ``tipped`` flags of the views an object is learned from: upright, and lying too
+    when ``tipped`` and it may tip."""
+    return (False, True) if tipped and object_spec(kind).can_tip else (False,)
 
 
 def model_cloud(kind: str, n_rotations: int, image_size: int, voxel: float) -> tuple:
@@ -214,9 +218,8 @@ def model_cloud(kind: str, n_rotations: int, image_size: int, voxel: float) -> t
 
     from vistask.envs.tabletop import object_views
 
-    sides = (False, True) if object_spec(kind).can_tip else (False,)
     parts = []
-    for side in sides:
+    for side in _rest_sides(kind, True):
         views, poses = object_views(kind, n_rotations, LEARNING_CAMERAS, image_size, side)
         for view, pose in zip(views, poses, strict=True):
             if view.mask(0).sum() < 3:
@@ -366,7 +369,7 @@ class PoseBenchmark:
         pose with every method.
 
         Args:
-            models: the object model and its dense (points, colours) cloud.
+            models: the object model and its dense (points, normals, colours) cloud.
 
         Returns:
             one record per method, and PNG pictures of the estimates (name -> bytes) if
