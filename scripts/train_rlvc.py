@@ -1,7 +1,7 @@
 """Train RLVC on an image env (RLJC if its actions are continuous); on the envs with an
 oracle, compare the greedy policy with the oracle's.
 
-python scripts/train_rlvc.py                       # the visual maze, 30,000 interactions
+python scripts/train_rlvc.py                       # the visual maze, 40,000 interactions
 python scripts/train_rlvc.py --seed 3 --out runs/s3
 python scripts/train_rlvc.py --env-kwargs '{"layout_seed": 7}'   # another maze layout
 python scripts/train_rlvc.py --env vistask/VisualMountainCar-v0 --compounds   # paper Figs. 6-7
@@ -31,7 +31,7 @@ def main() -> None:
         "--interactions",
         type=positive_int,
         default=None,
-        help="default 30,000 for RLVC, 60,000 for RLJC (the joint space needs more)",
+        help="default 40,000 for RLVC, 60,000 for RLJC (the joint space needs more)",
     )
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument(

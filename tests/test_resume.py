@@ -147,7 +147,7 @@ def test_a_visual_agent_resumes_from_its_checkpoint_as_a_straight_run(agent_name
     small = {"obstacles": ((0.45, 0.0, 0.55, 0.6),), "exits": ((0.8, 0.0, 1.0, 0.2),), "step": 0.2}
 
     def make():
-        return cls(gym.make(env_id, **small), n_words=256, n_envs=16, seed=4)
+        return cls(gym.make(env_id, **small), n_words=256, databases=3, n_envs=16, seed=4)
 
     straight = make().learn(3000)
 

@@ -57,3 +57,20 @@ def test_map_runs_reports_failures_and_finishes_the_rest_in_process_and_on_ray()
         by_item = {o.item: o for o in outcomes}
         assert by_item["4"].result == 4 and by_item["9"].result == 9
         assert not by_item["[1,"].ok and "JSONDecodeError" in by_item["[1,"].error
+
+
+@pytest.mark.parametrize("runs", [2, 3, 5, 8, 11])
+def test_numpy_statistics_equal_rliables(runs):
+    from rliable import metrics
+
+    rng = np.random.default_rng(runs)
+    x = rng.normal(size=(runs, 1)).round(1)  # rounded: ties between runs occur
+    y = rng.normal(size=(runs + 1, 1)).round(1)
+    assert statistics.trimmed_mean(x) == pytest.approx(metrics.aggregate_iqm(x))
+    assert statistics.improvement_probability(x, y) == pytest.approx(
+        metrics.probability_of_improvement(x, y)
+    )
+    columns = rng.normal(size=(runs, 4))
+    assert statistics.trimmed_mean(columns, axis=0) == pytest.approx(
+        [metrics.aggregate_iqm(columns[:, j]) for j in range(4)]
+    )

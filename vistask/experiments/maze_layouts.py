@@ -10,18 +10,43 @@ from pathlib import Path
 import numpy as np
 
 from vistask.experiments.train_rlvc import train_rlvc
+from vistask.parallel import map_runs
 from vistask.runs import run_dir, write_summary
+
+
+def _layout_run(job: tuple[int, int, int, Path]) -> dict:
+    """One layout's run (in this process or a Ray worker)."""
+    layout_seed, interactions, seed, out = job
+    run = train_rlvc(
+        env_kwargs={"layout_seed": layout_seed},
+        interactions=interactions,
+        seed=seed,
+        out=out / f"layout-{layout_seed}",
+        progress=False,
+    )
+    keys = ("return_ratio", "classes", "selected_features", "seconds")
+    return {"layout_seed": layout_seed, **{k: run[k] for k in keys}}
 
 
 def bench_maze_layouts(
     layout_seeds: Sequence[int] = tuple(range(1, 11)),
-    interactions: int = 30_000,
+    interactions: int = 40_000,
     seed: int = 0,
     out: str | Path | None = None,
-    progress: bool = False,
+    workers: int | None = 1,
+    address: str | None = None,
 ) -> dict:
     """Train RLVC with its defaults on ``VisualMaze-v0(layout_seed=k)`` for every k and score
     each against its own oracle; each run lands in ``out/layout-<k>``.
+
+    Args:
+        layout_seeds: the layouts.
+        interactions: interactions of each run.
+        seed: the agent's seed.
+        out: run directory (default ``runs/bench_maze_layouts-<time>``).
+        workers: runs side by side (``vistask.parallel.map_runs``: 1 runs them one after
+            another in this process, more are Ray tasks; None: all cores).
+        address: a Ray cluster to run on (default: ``RAY_ADDRESS`` if set, else local).
 
     Returns:
         The summary written to ``out/summary.json``: ``layouts``, a list of
@@ -30,24 +55,12 @@ def bench_maze_layouts(
     """
     start = time.perf_counter()
     out = run_dir("bench_maze_layouts", out)
-    layouts = []
-    for k in layout_seeds:
-        run = train_rlvc(
-            env_kwargs={"layout_seed": int(k)},
-            interactions=interactions,
-            seed=seed,
-            out=out / f"layout-{k}",
-            progress=progress,
-        )
-        layouts.append(
-            {
-                "layout_seed": int(k),
-                "return_ratio": run["return_ratio"],
-                "classes": run["classes"],
-                "selected_features": run["selected_features"],
-                "seconds": run["seconds"],
-            }
-        )
+    jobs = [(int(k), interactions, seed, out) for k in layout_seeds]
+    outcomes = map_runs(_layout_run, jobs, workers, address)
+    failed = [o for o in outcomes if not o.ok]
+    if failed:
+        raise RuntimeError("layout runs failed:\n" + "\n".join(o.error for o in failed))
+    layouts = sorted((o.result for o in outcomes), key=lambda r: r["layout_seed"])
     ratios = np.array([layout["return_ratio"] for layout in layouts])
     summary = {
         "layouts": layouts,

@@ -234,7 +234,7 @@ def learn_resumable(
 def train_rlvc(
     env_id: str = "vistask/VisualMaze-v0",
     env_kwargs: dict | None = None,
-    interactions: int = 30_000,
+    interactions: int = 40_000,
     seed: int = 0,
     out: str | Path | None = None,
     progress: bool = True,
