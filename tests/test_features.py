@@ -1,5 +1,6 @@
 """Visual features: SIFT keypoints, the k-means vocabulary, presence, determinism, round trip."""
 
+import os
 import pickle
 
 import cv2
@@ -53,6 +54,14 @@ def test_batch_extraction_equals_one_by_one(percepts):
     for kps, other in zip(batch, reversed(again), strict=True):
         np.testing.assert_array_equal(kps.xy, other.xy)
         np.testing.assert_array_equal(kps.descriptors, other.descriptors)
+
+
+def test_extraction_threads_follow_the_cpus_ray_gives_a_task(monkeypatch):
+    monkeypatch.setenv("OMP_NUM_THREADS", "1")  # what Ray sets in a task of one CPU
+    assert SiftExtractor().threads == 1
+    monkeypatch.setenv("OMP_NUM_THREADS", "")
+    assert SiftExtractor().threads == os.cpu_count()
+    assert SiftExtractor(threads=3).threads == 3
 
 
 def test_the_same_image_always_gives_the_same_features(extractor, percepts):

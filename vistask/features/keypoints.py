@@ -62,6 +62,13 @@ def check_image_space(space, user: str) -> None:
         )
 
 
+def _allowed_threads() -> int:
+    # Ray runs each task with OMP_NUM_THREADS set to its CPUs: runs side by side would
+    # otherwise each start a thread per core.
+    allowed = os.environ.get("OMP_NUM_THREADS", "")
+    return int(allowed) if allowed.isdigit() and int(allowed) > 0 else os.cpu_count() or 1
+
+
 class SiftExtractor:
     """SIFT keypoints and descriptors (optionally with colour), one image or a batch.
 
@@ -74,7 +81,8 @@ class SiftExtractor:
         contrast_threshold: SIFT's detection threshold; lower finds more, weaker keypoints.
         max_keypoints: keep at most this many strongest keypoints per image (0: all).
         color_weight: weight of the 2-D chromaticity appended to each descriptor (0: grey SIFT).
-        threads: worker threads for ``batch`` (default: all cores). OpenCV releases the GIL.
+        threads: worker threads for ``batch`` (default: ``OMP_NUM_THREADS`` where it is set, as
+            Ray sets it to a task's CPUs, else all cores). OpenCV releases the GIL.
     """
 
     def __init__(
@@ -89,7 +97,7 @@ class SiftExtractor:
         self.contrast_threshold = float(contrast_threshold)
         self.max_keypoints = int(max_keypoints)
         self.color_weight = float(color_weight)
-        self.threads = threads or os.cpu_count() or 1
+        self.threads = threads or _allowed_threads()
         self._local = threading.local()
         self._pool: ThreadPoolExecutor | None = None
 
