@@ -181,3 +181,33 @@ def test_compaction_settings_are_checked():
         RLVC(10, 2, 0.9, compact_every=0)
     with pytest.raises(ValueError, match="compaction_tolerance"):
         RLVC(10, 2, 0.9, compaction=True, compaction_tolerance=1.5)
+
+
+def test_a_merge_beyond_the_memory_budget_fails_clearly_and_leaves_the_classes():
+    from vistask.rlvc.bdd import BDDTooLarge
+
+    n = 40
+    classes = ClassBDD(2 * n, max_memory=64 * 2**20)
+    x = [classes._var(i) for i in range(n)]  # declared first: the worst order for x_i & y_i
+    y = [classes._var(n + i) for i in range(n)]
+    classes.functions = [xi & yi for xi, yi in zip(x, y, strict=True)]
+    before = list(classes.functions)
+    with pytest.raises(BDDTooLarge, match="memory budget"):
+        classes.merge(torch.zeros(n, dtype=torch.long))  # 2^n nodes in this order
+    assert classes.functions == before
+
+
+def test_rlvc_goes_on_unmerged_when_a_merge_outgrows_the_bdd(monkeypatch):
+    from vistask.rlvc.bdd import BDDTooLarge
+
+    def too_large(self, groups):
+        raise BDDTooLarge("merging needs more than the BDD's memory budget")
+
+    monkeypatch.setattr(ClassBDD, "merge", too_large)
+    db = two_faced_chain()
+    tree = RLVC(db.n_features, 2, gamma=0.9).learn(db, progress=False)
+    bdd = RLVC(db.n_features, 2, gamma=0.9, compaction=True, compact_every=5)
+    with pytest.warns(UserWarning, match="compaction skipped"):
+        bdd.learn(db, progress=False)
+    assert all(r.merged == 0 for r in bdd.history)
+    assert bdd.n_classes == tree.n_classes  # learning went on as the tree's

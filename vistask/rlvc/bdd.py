@@ -9,6 +9,10 @@ depends on drops out of every class's support, and ``simplify`` drops the featur
 percepts seen so far do not need (the classes are free to differ on feature combinations never
 seen: the cofactor "feature absent" replaces every class). Dynamic reordering is off: the
 support of a class does not depend on the order, and sifting took minutes a stage on the maze.
+In a fixed order, though, a disjunction of many classes can grow exponentially: ``merge`` works
+within a memory budget (``MAX_MEMORY``) and raises ``BDDTooLarge`` beyond it, and the learner
+then keeps its classes unmerged (sifting during the merge kept the memory at 1.3 GB on place
+navigation but had not finished one merge after 3 minutes).
 
 Classification replays the history of the partition on a batch of presence vectors: every
 class starts as class 0, each group of splits (one stage's: distinct classes) moves the rows
@@ -31,6 +35,16 @@ except ImportError:  # pragma: no cover - wheels without the CUDD extension
     from dd import autoref as _dd
 
 
+# CUDD's memory budget: a merge whose disjunctions outgrow it fails with ``BDDTooLarge`` (the
+# learner then keeps its classes unmerged) instead of filling the machine's memory, which a
+# merge on place navigation did (24 GB).
+MAX_MEMORY = 4 * 2**30
+
+
+class BDDTooLarge(MemoryError):
+    """A merge needed more than the BDD's memory budget; the classes are left as they were."""
+
+
 def _name(feature: int) -> str:
     return f"f{feature}"
 
@@ -47,14 +61,17 @@ class ClassBDD:
 
     Args:
         n_features: number of visual features F a presence vector holds.
+        max_memory: bytes the CUDD manager may take (the pure-Python fallback has no budget).
     """
 
-    def __init__(self, n_features: int) -> None:
+    def __init__(self, n_features: int, max_memory: int = MAX_MEMORY) -> None:
         if n_features < 1:
             raise ValueError(f"n_features must be >= 1, got {n_features}")
         self.n_features = int(n_features)
         self.bdd = _dd.BDD()
         self.bdd.configure(reordering=False)
+        if _dd.__name__ == "dd.cudd":
+            self.bdd.configure(max_memory=int(max_memory))
         self.functions = [self.bdd.true]
         # The history: {"splits": {class: (feature, new class)}} or {"merge": groups list}.
         self.history: list[dict] = []
@@ -104,7 +121,10 @@ class ClassBDD:
         return new_class
 
     def merge(self, groups: torch.Tensor) -> None:
-        """Class c becomes part of class ``groups[c]``; groups (S,) long numbered 0..G-1."""
+        """Class c becomes part of class ``groups[c]``; groups (S,) long numbered 0..G-1.
+
+        Raises ``BDDTooLarge``, the classes unchanged, where the disjunctions outgrow the
+        memory budget (in a fixed variable order they can grow exponentially)."""
         groups = torch.as_tensor(groups).long()
         if groups.shape != (self.n_classes,):
             raise ValueError(f"groups must be ({self.n_classes},), got {tuple(groups.shape)}")
@@ -112,8 +132,14 @@ class ClassBDD:
         if set(groups.tolist()) != set(range(n_groups)):
             raise ValueError("groups must number the merged classes 0..G-1 without gaps")
         merged = [self.bdd.false] * n_groups
-        for function, g in zip(self.functions, groups.tolist(), strict=True):
-            merged[g] = merged[g] | function
+        try:
+            for function, g in zip(self.functions, groups.tolist(), strict=True):
+                merged[g] = merged[g] | function
+        except ValueError as error:  # dd.cudd: CUDD returned no node (its budget is spent)
+            raise BDDTooLarge(
+                f"merging {self.n_classes} classes into {n_groups} needs more than the BDD's "
+                f"memory budget ({self.bdd.configure()['max_memory'] / 2**30:.1f} GiB)"
+            ) from error
         self.functions = merged
         self.history.append({"merge": groups.tolist()})
         self._update_selected()
@@ -224,4 +250,4 @@ class ClassBDD:
         return classes
 
 
-__all__ = ["ClassBDD"]
+__all__ = ["BDDTooLarge", "ClassBDD"]
