@@ -35,6 +35,7 @@ class SB3Model:
     @property
     def logger(self) -> Logger:
         if self._logger is None:
+            # SB3's configure_logger(0, None) would make an empty /tmp/SB3-<time> folder
             self._logger = Logger(folder=None, output_formats=[])
         return self._logger
 
@@ -49,10 +50,8 @@ class SB3Model:
             )
         if reset_num_timesteps:
             self.num_timesteps = 0
-        if self.tensorboard_log is None:
-            # SB3's configure_logger would make an empty SB3-<time> folder in /tmp per call
-            self._logger = Logger(folder=None, output_formats=[])
-        else:
+        self._logger = None  # no TensorBoard folder: the silent logger of ``logger``
+        if self.tensorboard_log is not None:
             self._logger = configure_logger(
                 0, self.tensorboard_log, tb_log_name, reset_num_timesteps
             )

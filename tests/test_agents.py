@@ -214,11 +214,15 @@ def test_sb3_callbacks_run_once_per_stage_and_can_stop_learning(tmp_path):
     assert any((tmp_path / "tb").rglob("events.out.tfevents.*"))
 
 
-def test_eval_callback_evaluates_the_agent_as_an_sb3_model(tmp_path):
+def test_eval_callback_evaluates_the_agent_as_an_sb3_model(tmp_path, monkeypatch):
+    import tempfile
+
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))  # where SB3 puts its logger folders
     evaluations = EvalCallback(
         small_maze(), eval_freq=1, n_eval_episodes=3, log_path=str(tmp_path), verbose=0
     )
     agent = RLVCAgent(small_maze(), n_words=256, seed=0).learn(1500, callback=evaluations)
+    assert not list(tmp_path.glob("SB3-*"))  # no TensorBoard folder given: no logger folder
     assert len(evaluations.evaluations_results) == len(agent.rlvc.history)
     assert all(len(rewards) == 3 for rewards in evaluations.evaluations_results)
     assert np.isfinite(evaluations.last_mean_reward)
