@@ -309,6 +309,7 @@ class RLVC:
         except BDDTooLarge as error:
             warnings.warn(f"compaction skipped, the classes stay unmerged: {error}", stacklevel=2)
             self._splits_since_compaction = 0
+            self.timing.compaction += time.perf_counter() - start  # the failed merge's time
             return classes, q, 0
         classes = groups[classes]
         # A feature whose absence only moves percepts between interchangeable merged classes
