@@ -1,5 +1,6 @@
 """Open3D baseline: recovers a synthetic rigid transform; clear errors for empty clouds."""
 
+import open3d as o3d
 import pytest
 import torch
 
@@ -30,10 +31,12 @@ def test_open3d_recovers_a_rigid_transform(seed: int) -> None:
     source = _asymmetric_surface(3000, seed)
     pose = random_poses(1, 0.2, generator=torch.Generator().manual_seed(seed))[0]
     target = apply(pose, source) + 0.0005 * torch.randn(source.shape)
+    threads = o3d.utility.get_max_threads()
     result = Open3DRegistration(voxel=0.004).register(source, target, seed=seed)
     t_err, r_err = pose_error(result.pose, pose)
     assert t_err < 0.005 and r_err < 3.0
     assert result.fitness > 0.8
+    assert o3d.utility.get_max_threads() == threads  # one-thread RANSAC gives Open3D back
 
 
 def test_views_with_normals_towards_the_camera_and_colours_register() -> None:

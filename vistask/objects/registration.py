@@ -34,6 +34,19 @@ MIN_ICP_POINTS = 50
 """Coarse ICP scales that leave fewer points than this are skipped."""
 
 
+@contextlib.contextmanager
+def _one_thread():
+    """Open3D limited to one thread inside the block, its limit restored after."""
+    import open3d as o3d
+
+    previous = o3d.utility.get_max_threads()
+    o3d.utility.set_max_threads(1)
+    try:
+        yield
+    finally:
+        o3d.utility.set_max_threads(previous)
+
+
 def _cloud(points: Tensor, normals: Tensor | None, colors: Tensor | None, name: str, voxel: float):
     import open3d as o3d
 
@@ -144,7 +157,8 @@ class Open3DRegistration:
             source: (N, 3) points (e.g. an object model in its own frame).
             target: (M, 3) points (e.g. a scene in the world frame).
             source_normals, target_normals: (N, 3) / (M, 3) unit normals, or None to estimate.
-            seed: seed of the first RANSAC run (run r uses seed + r).
+            seed: seed of the first RANSAC run (run r uses seed + r). RANSAC runs on one
+                thread, so that a seed gives the same pose in any process.
             source_colors, target_colors: (N, 3) / (M, 3) RGB in [0, 1], or None.
 
         Returns:
@@ -166,25 +180,28 @@ class Open3DRegistration:
         f_tgt = reg.compute_fpfh_feature(tgt, search)
         distance = 1.5 * self.voxel
         candidates = []
-        for r in range(self.restarts):
-            o3d.utility.random.seed((seed + r) % 2**31)  # Open3D takes a C int
-            candidates.append(
-                reg.registration_ransac_based_on_feature_matching(
-                    src,
-                    tgt,
-                    f_src,
-                    f_tgt,
-                    self.mutual_filter,
-                    distance,
-                    reg.TransformationEstimationPointToPoint(False),
-                    3,
-                    [
-                        reg.CorrespondenceCheckerBasedOnEdgeLength(0.9),
-                        reg.CorrespondenceCheckerBasedOnDistance(distance),
-                    ],
-                    reg.RANSACConvergenceCriteria(self.ransac_iterations, self.confidence),
-                ).transformation
-            )
+        # Open3D's parallel RANSAC may pick another sample from run to run whatever the
+        # seed; on one thread a seed gives one result, in any process and on any machine.
+        with _one_thread():
+            for r in range(self.restarts):
+                o3d.utility.random.seed((seed + r) % 2**31)  # Open3D takes a C int
+                candidates.append(
+                    reg.registration_ransac_based_on_feature_matching(
+                        src,
+                        tgt,
+                        f_src,
+                        f_tgt,
+                        self.mutual_filter,
+                        distance,
+                        reg.TransformationEstimationPointToPoint(False),
+                        3,
+                        [
+                            reg.CorrespondenceCheckerBasedOnEdgeLength(0.9),
+                            reg.CorrespondenceCheckerBasedOnDistance(distance),
+                        ],
+                        reg.RANSACConvergenceCriteria(self.ransac_iterations, self.confidence),
+                    ).transformation
+                )
         if self.fgr:
             option = reg.FastGlobalRegistrationOption(maximum_correspondence_distance=distance)
             candidates.append(
