@@ -5,6 +5,7 @@ python scripts/train_rlvc.py                       # the visual maze, 40,000 int
 python scripts/train_rlvc.py --seed 3 --out runs/s3
 python scripts/train_rlvc.py --env-kwargs '{"layout_seed": 7}'   # another maze layout
 python scripts/train_rlvc.py --env vistask/VisualMountainCar-v0 --compounds   # paper Figs. 6-7
+python scripts/train_rlvc.py --env vistask/VisualMountainCar-v0 --compounds --compaction
 python scripts/train_rlvc.py --env vistask/VisualMazeContinuous-v0   # RLJC, paper Fig. 10
 python scripts/train_rlvc.py --resume runs/s3      # go on after a stop (Ctrl-C, kill)
 """
@@ -39,6 +40,9 @@ def main() -> None:
     )
     parser.add_argument("--compounds", action="store_true", help="let RLVC make compound features")
     parser.add_argument(
+        "--compaction", action="store_true", help="RLVC's classes in a BDD, merged by compaction"
+    )
+    parser.add_argument(
         "--resume",
         type=Path,
         default=None,
@@ -53,17 +57,18 @@ def main() -> None:
     if args.resume is not None:
         saved = stopped_run_settings(parser, args.resume, "settings.json")
         args.compounds = saved.pop("compounds", False)
+        args.compaction = saved.pop("compaction", False)
         run = {**saved, "out": args.resume, "progress": run["progress"]}
         args.env, args.env_kwargs = saved["env_id"], saved["env_kwargs"]
     interrupt_on_sigterm()
     env = gym.make(args.env, **args.env_kwargs)
     env.close()
     if isinstance(env.action_space, gym.spaces.Box):
-        if args.compounds:
-            parser.error("--compounds applies to RLVC (discrete actions), not to RLJC")
+        if args.compounds or args.compaction:
+            parser.error("--compounds and --compaction apply to RLVC (discrete actions), not RLJC")
         train_rljc(**run)
     else:
-        train_rlvc(**run, compounds=args.compounds)
+        train_rlvc(**run, compounds=args.compounds, compaction=args.compaction)
 
 
 if __name__ == "__main__":

@@ -183,31 +183,71 @@ def test_compaction_settings_are_checked():
         RLVC(10, 2, 0.9, compaction=True, compaction_tolerance=1.5)
 
 
-def test_a_merge_beyond_the_memory_budget_fails_clearly_and_leaves_the_classes():
-    from vistask.rlvc.bdd import BDDTooLarge
+def equality_classes(k: int, max_memory: int) -> tuple[ClassTree, ClassBDD, list[int]]:
+    """The same splits in a tree and a BDD: a full tree over features 0..k-1 (x), each leaf b
+    then split along k..2k-1 (y) down to the cell where y = b. The cells together are x = y:
+    2^k nodes in the order x then y."""
+    tree, classes = ClassTree(2 * k), ClassBDD(2 * k, max_memory=max_memory)
 
-    n = 40
-    classes = ClassBDD(2 * n, max_memory=64 * 2**20)
-    x = [classes._var(i) for i in range(n)]  # declared first: the worst order for x_i & y_i
-    y = [classes._var(n + i) for i in range(n)]
-    classes.functions = [xi & yi for xi, yi in zip(x, y, strict=True)]
-    before = list(classes.functions)
-    with pytest.raises(BDDTooLarge, match="memory budget"):
-        classes.merge(torch.zeros(n, dtype=torch.long))  # 2^n nodes in this order
-    assert classes.functions == before
+    def split(c: int, f: int) -> int:
+        new = tree.split(c, f)
+        assert classes.split(c, f) == new
+        return new
+
+    leaves = [0]
+    for i in range(k):
+        leaves = [c for leaf in leaves for c in (leaf, split(leaf, i))]
+    cells = []
+    for b, leaf in enumerate(leaves):  # leaf b: feature i present where bit k-1-i of b is
+        for i in range(k):
+            present = split(leaf, k + i)
+            leaf = present if (b >> (k - 1 - i)) & 1 else leaf
+        cells.append(leaf)
+    return tree, classes, cells
 
 
-def test_rlvc_goes_on_unmerged_when_a_merge_outgrows_the_bdd(monkeypatch):
-    from vistask.rlvc.bdd import BDDTooLarge
+def test_classes_that_outgrow_the_bdd_go_on_as_their_history():
+    with pytest.warns(UserWarning, match="outgrew the BDD's memory budget"):
+        tree, classes, cells = equality_classes(10, max_memory=16 * 2**20)
+        groups = torch.zeros(classes.n_classes, dtype=torch.long)
+        groups[cells] = 1
+        classes.merge(groups)
+    assert not classes.in_bdd and classes.n_classes == 2
+    presence = torch.from_numpy(np.random.default_rng(0).random((3000, 20)) < 0.5)
+    presence[:1000, 10:] = presence[:1000, :10]
+    equal = (presence[:, :10] == presence[:, 10:]).all(dim=1)
+    assert torch.equal(classes.classify(presence), equal.long())
+    assert torch.equal(classes.classify(presence), groups[tree.classify(presence)])
+    assert classes.split(1, 0) == 2  # learning goes on: splits, dropped features, saving
+    assert torch.equal(classes.classify(presence), equal * (1 + presence[:, 0]))
+    assert classes.selected_features == list(range(20))
+    seen = presence[~presence[:, 19]]
+    assert classes.simplify(seen) == [19] and classes.selected_features == list(range(19))
+    assert torch.equal(classes.classify(seen), equal[~presence[:, 19]] * (1 + seen[:, 0]))
+    loaded = ClassBDD.from_state_dict(classes.state_dict())
+    assert not loaded.in_bdd and loaded.history == classes.history
+    assert torch.equal(loaded.classify(presence), classes.classify(presence))
+    assert loaded.selected_features == classes.selected_features
 
-    def too_large(self, groups):
-        raise BDDTooLarge("merging needs more than the BDD's memory budget")
 
-    monkeypatch.setattr(ClassBDD, "merge", too_large)
+def test_rlvc_merges_on_when_its_classes_outgrow_the_bdd(monkeypatch):
+    bdd_step = ClassBDD._bdd_step
+
+    def out_of_memory_at_merges(self, step):
+        def no_node():
+            raise ValueError("`DdNode *node` is `NULL` pointer.")  # what dd.cudd raises
+
+        bdd_step(self, no_node if step.__name__ == "merged_functions" else step)
+
+    monkeypatch.setattr(ClassBDD, "_bdd_step", out_of_memory_at_merges)
     db = two_faced_chain()
     tree = RLVC(db.n_features, 2, gamma=0.9).learn(db, progress=False)
-    bdd = RLVC(db.n_features, 2, gamma=0.9, compaction=True, compact_every=5)
-    with pytest.warns(UserWarning, match="compaction skipped"):
+    bdd = RLVC(
+        db.n_features, 2, gamma=0.9, compaction=True, compact_every=5, compaction_tolerance=0.01
+    )
+    with pytest.warns(UserWarning, match="outgrew the BDD's memory budget"):
         bdd.learn(db, progress=False)
-    assert all(r.merged == 0 for r in bdd.history)
-    assert bdd.n_classes == tree.n_classes  # learning went on as the tree's
+    assert not bdd.structure.in_bdd
+    assert sum(r.merged for r in bdd.history) > 0 and bdd.n_classes < tree.n_classes
+    faces = torch.eye(db.n_features, dtype=torch.bool)[:8]  # both faces of states 0..3
+    assert bdd.greedy(faces).tolist() == [1] * 8

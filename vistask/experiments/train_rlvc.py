@@ -240,6 +240,7 @@ def train_rlvc(
     progress: bool = True,
     pictures: bool = True,
     compounds: bool = False,
+    compaction: bool = False,
 ) -> dict:
     """Learn visual classes with ``RLVCAgent``'s defaults, score the greedy policy, save the
     agent, its TensorBoard run, pictures and ``summary.json`` in ``out``.
@@ -254,6 +255,7 @@ def train_rlvc(
         progress: show progress bars.
         pictures: draw values and policies (the maze, the car).
         compounds: let the agent make compound features (``RLVCAgent``'s ``compounds``).
+        compaction: hold the agent's classes in a BDD and merge them (``compaction``).
 
     Returns:
         The summary written to ``summary.json``.
@@ -261,10 +263,19 @@ def train_rlvc(
     start = time.perf_counter()
     out = run_dir("train_rlvc", out)
     settings = {"env_id": env_id, "env_kwargs": env_kwargs or {}, "interactions": interactions}
-    check_same_settings(out / "settings.json", {**settings, "seed": seed, "compounds": compounds})
+    check_same_settings(
+        out / "settings.json",
+        {**settings, "seed": seed, "compounds": compounds, "compaction": compaction},
+    )
     env = gym.make(env_id, **(env_kwargs or {}))
     scorer = Scorer(env_id, env_kwargs)
-    agent = RLVCAgent(env, compounds=compounds, seed=seed, tensorboard_log=out / "tensorboard")
+    agent = RLVCAgent(
+        env,
+        compounds=compounds,
+        compaction=compaction,
+        seed=seed,
+        tensorboard_log=out / "tensorboard",
+    )
     evaluations = EvaluateEvery(scorer)
     agent = learn_resumable(agent, interactions, out, evaluations, progress)
     learned = time.perf_counter()
@@ -312,6 +323,7 @@ def train_rlvc(
             "q_solving": rlvc.timing.solve,
             "split_search": rlvc.timing.split - rlvc.timing.compounds,
             "compound_search": rlvc.timing.compounds,
+            "compaction": rlvc.timing.compaction,
             "evaluation": evaluations.seconds,
         },
         "history": [asdict(r) for r in rlvc.history],

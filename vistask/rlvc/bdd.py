@@ -9,10 +9,12 @@ depends on drops out of every class's support, and ``simplify`` drops the featur
 percepts seen so far do not need (the classes are free to differ on feature combinations never
 seen: the cofactor "feature absent" replaces every class). Dynamic reordering is off: the
 support of a class does not depend on the order, and sifting took minutes a stage on the maze.
-In a fixed order, though, a disjunction of many classes can grow exponentially: ``merge`` works
-within a memory budget (``MAX_MEMORY``) and raises ``BDDTooLarge`` beyond it, and the learner
-then keeps its classes unmerged (sifting during the merge kept the memory at 1.3 GB on place
-navigation but had not finished one merge after 3 minutes).
+In a fixed order, though, a disjunction of many classes can grow exponentially. The manager
+works within a memory budget (``MAX_MEMORY``); where a split, a merge or a cofactor would
+outgrow it, the classes leave the BDD with a warning and go on as their history alone (below),
+which classifies every percept as the BDD would: merges and dropped features still apply, and
+the selected features are then those that the history's splits test (sifting during a merge
+kept the memory at 1.3 GB on place navigation but had not finished one merge after 3 minutes).
 
 Classification replays the history of the partition on a batch of presence vectors: every
 class starts as class 0, each group of splits (one stage's: distinct classes) moves the rows
@@ -26,6 +28,9 @@ merged class split again.
 
 from __future__ import annotations
 
+import warnings
+from collections.abc import Callable
+
 import numpy as np
 import torch
 
@@ -35,14 +40,11 @@ except ImportError:  # pragma: no cover - wheels without the CUDD extension
     from dd import autoref as _dd
 
 
-# CUDD's memory budget: a merge whose disjunctions outgrow it fails with ``BDDTooLarge`` (the
-# learner then keeps its classes unmerged) instead of filling the machine's memory, which a
-# merge on place navigation did (24 GB).
-MAX_MEMORY = 4 * 2**30
-
-
-class BDDTooLarge(MemoryError):
-    """A merge needed more than the BDD's memory budget; the classes are left as they were."""
+# CUDD's memory budget: classes that outgrow it leave the BDD (``ClassBDD.in_bdd``) instead of
+# filling the machine's memory, which a merge on place navigation did (24 GB). The default maze
+# peaks at 77 MiB; near the budget every split walks huge functions (the car with compaction:
+# splits took 296 s of a 448 s run at 4 GiB, 87 s of 281 s at 1 GiB, with the same classes).
+MAX_MEMORY = 2**30
 
 
 def _name(feature: int) -> str:
@@ -61,33 +63,69 @@ class ClassBDD:
 
     Args:
         n_features: number of visual features F a presence vector holds.
-        max_memory: bytes the CUDD manager may take (the pure-Python fallback has no budget).
+        max_memory: bytes the CUDD manager may take (the pure-Python fallback has no budget);
+            classes that would outgrow it go on as their history (``in_bdd`` turns False).
     """
 
     def __init__(self, n_features: int, max_memory: int = MAX_MEMORY) -> None:
         if n_features < 1:
             raise ValueError(f"n_features must be >= 1, got {n_features}")
         self.n_features = int(n_features)
+        self.max_memory = int(max_memory)
         self.bdd = _dd.BDD()
         self.bdd.configure(reordering=False)
         if _dd.__name__ == "dd.cudd":
-            self.bdd.configure(max_memory=int(max_memory))
-        self.functions = [self.bdd.true]
+            self.bdd.configure(max_memory=self.max_memory)
+        # One function per class; None once the classes outgrew the memory budget.
+        self.functions: list | None = [self.bdd.true]
+        self._n_classes = 1
         # The history: {"splits": {class: (feature, new class)}} or {"merge": groups list}.
         self.history: list[dict] = []
         self._selected: set[int] = set()
 
     @property
     def n_classes(self) -> int:
-        return len(self.functions)
+        return self._n_classes
+
+    @property
+    def in_bdd(self) -> bool:
+        """False once the classes outgrew the BDD's memory budget and went on as their
+        history alone (same classification; selected features counted from the splits)."""
+        return self.functions is not None
 
     @property
     def selected_features(self) -> list[int]:
         """Sorted distinct features that some class depends on."""
         return sorted(self._selected)
 
+    def _tested_features(self) -> set[int]:
+        """Features that some split of the history tests."""
+        return {f for step in self.history for f, _ in step.get("splits", {}).values()}
+
     def _update_selected(self) -> None:
-        self._selected = {int(name[1:]) for u in self.functions for name in self.bdd.support(u)}
+        if self.functions is None:
+            self._selected = self._tested_features()
+        else:
+            self._selected = {int(name[1:]) for u in self.functions for name in self.bdd.support(u)}
+
+    def _bdd_step(self, step: Callable[[], list]) -> None:
+        """The classes' functions become ``step()``'s; where CUDD runs out of its memory
+        budget, the classes leave the BDD (see the module)."""
+        if self.functions is None:
+            return
+        try:
+            self.functions = step()
+        except ValueError as error:
+            if "NULL" not in str(error):  # dd.cudd's word for "CUDD returned no node"
+                raise
+            warnings.warn(
+                f"the visual classes outgrew the BDD's memory budget "
+                f"({self.max_memory / 2**30:.1f} GiB) at {self.n_classes} classes: they go on "
+                f"as their history of splits and merges, which classifies as the BDD did ({error})",
+                stacklevel=3,
+            )
+            self.functions = None
+            self.bdd = None  # frees CUDD's nodes
 
     def widen(self, n_features: int) -> None:
         """Presence vectors hold ``n_features`` features from now on (compounds were added)."""
@@ -96,8 +134,6 @@ class ClassBDD:
         self.n_features = int(n_features)
 
     def _var(self, feature: int):
-        if not 0 <= feature < self.n_features:
-            raise ValueError(f"feature {feature} outside 0..{self.n_features - 1}")
         name = _name(feature)
         if name not in self.bdd.vars:
             self.bdd.declare(name)
@@ -107,10 +143,19 @@ class ClassBDD:
         """Split a class on a feature; returns the id of the new ("present") class."""
         if not 0 <= class_id < self.n_classes:
             raise ValueError(f"no class {class_id} (there are {self.n_classes})")
-        test, function = self._var(feature), self.functions[class_id]
-        self.functions[class_id] = function & ~test
-        self.functions.append(function & test)
-        new_class = self.n_classes - 1
+        if not 0 <= feature < self.n_features:
+            raise ValueError(f"feature {feature} outside 0..{self.n_features - 1}")
+
+        def split_functions() -> list:
+            test, function = self._var(feature), self.functions[class_id]
+            absent, present = function & ~test, function & test
+            self.functions[class_id] = absent
+            self.functions.append(present)
+            return self.functions
+
+        self._bdd_step(split_functions)
+        new_class = self._n_classes
+        self._n_classes += 1
         group = self.history[-1].get("splits") if self.history else None
         # Splits of distinct classes, none made by the same group, are applied at once.
         if group is None or class_id in group or class_id in {n for _, n in group.values()}:
@@ -121,26 +166,22 @@ class ClassBDD:
         return new_class
 
     def merge(self, groups: torch.Tensor) -> None:
-        """Class c becomes part of class ``groups[c]``; groups (S,) long numbered 0..G-1.
-
-        Raises ``BDDTooLarge``, the classes unchanged, where the disjunctions outgrow the
-        memory budget (in a fixed variable order they can grow exponentially)."""
+        """Class c becomes part of class ``groups[c]``; groups (S,) long numbered 0..G-1."""
         groups = torch.as_tensor(groups).long()
         if groups.shape != (self.n_classes,):
             raise ValueError(f"groups must be ({self.n_classes},), got {tuple(groups.shape)}")
         n_groups = int(groups.max()) + 1
         if set(groups.tolist()) != set(range(n_groups)):
             raise ValueError("groups must number the merged classes 0..G-1 without gaps")
-        merged = [self.bdd.false] * n_groups
-        try:
+
+        def merged_functions() -> list:
+            merged = [self.bdd.false] * n_groups
             for function, g in zip(self.functions, groups.tolist(), strict=True):
                 merged[g] = merged[g] | function
-        except ValueError as error:  # dd.cudd: CUDD returned no node (its budget is spent)
-            raise BDDTooLarge(
-                f"merging {self.n_classes} classes into {n_groups} needs more than the BDD's "
-                f"memory budget ({self.bdd.configure()['max_memory'] / 2**30:.1f} GiB)"
-            ) from error
-        self.functions = merged
+            return merged
+
+        self._bdd_step(merged_functions)
+        self._n_classes = n_groups
         self.history.append({"merge": groups.tolist()})
         self._update_selected()
 
@@ -157,32 +198,55 @@ class ClassBDD:
             allowed: (S, S) bool, True where a percept of class i may move to class j (None:
                 nowhere else).
         """
-        bits = presence.cpu().numpy().copy()
-        classes = self._replay(bits)
+        if not self._selected:
+            return []
+        # The replay reads only the features that the history tests: a copy of their columns.
+        tested = sorted(self._tested_features())
+        column = np.full(self.n_features, -1)
+        column[tested] = np.arange(len(tested))
+        bits = presence.cpu().numpy()[:, tested]
+        classes = self._replay(bits, column)
         allowed = np.eye(self.n_classes, dtype=bool) if allowed is None else allowed.numpy()
         dropped = []
         counts = bits.sum(axis=0)
-        for feature in sorted(self._selected, key=lambda f: counts[f]):
-            rows = bits[:, feature].nonzero()[0]
+        for feature in sorted(self._selected, key=lambda f: counts[column[f]]):
+            rows = bits[:, column[feature]].nonzero()[0]
             changed = bits[rows]
-            changed[:, feature] = False
+            changed[:, column[feature]] = False
             # Classifying with the dropped columns zeroed is classifying with the cofactors.
-            if allowed[classes[rows], self._replay(changed)].all():
-                bits[rows, feature] = False
+            if allowed[classes[rows], self._replay(changed, column)].all():
+                bits[rows, column[feature]] = False
                 dropped.append(feature)
-        if dropped:
-            absent = {_name(f): False for f in dropped}
-            self.functions = [self.bdd.let(absent, u) for u in self.functions]
-            for step in self.history:
-                if "splits" in step:
-                    for c in [c for c, (f, _) in step["splits"].items() if f in dropped]:
-                        del step["splits"][c]
-            kept = torch.tensor([u != self.bdd.false for u in self.functions])
-            if not kept.all():
+        if not dropped:
+            return dropped
+        absent = {_name(f): False for f in dropped}
+        self._bdd_step(lambda: [self.bdd.let(absent, u) for u in self.functions])
+        for step in self.history:
+            if "splits" in step:
+                for c in [c for c, (f, _) in step["splits"].items() if f in dropped]:
+                    del step["splits"][c]
+        kept = self._non_empty()
+        if not kept.all():
+            if self.functions is not None:
                 self.functions = [u for u, k in zip(self.functions, kept, strict=True) if k]
-                self.history.append({"merge": (kept.cumsum(0) - 1).clamp_min(0).tolist()})
-            self._update_selected()
+            self._n_classes = int(kept.sum())
+            self.history.append({"merge": (kept.cumsum(0) - 1).clamp_min(0).tolist()})
+        self._update_selected()
         return dropped
+
+    def _non_empty(self) -> torch.Tensor:
+        """(S,) bool: classes that some presence vector reaches. In the BDD: functions other
+        than false; from the history: classes that class 0 reaches through its splits and
+        merges (a split that tests a feature again on a path counts as reaching)."""
+        if self.functions is not None:
+            return torch.tensor([u != self.bdd.false for u in self.functions])
+        alive = {0}
+        for step in self.history:
+            if "merge" in step:
+                alive = {step["merge"][c] for c in alive}
+            else:
+                alive |= {n for c, (_, n) in step["splits"].items() if c in alive}
+        return torch.tensor([c in alive for c in range(self.n_classes)])
 
     def classify(self, presence: torch.Tensor) -> torch.Tensor:
         """(N, F) bool presence -> (N,) long class ids, all rows at once."""
@@ -192,8 +256,9 @@ class ClassBDD:
             )
         return torch.as_tensor(self._replay(presence.cpu().numpy()), device=presence.device)
 
-    def _replay(self, bits: np.ndarray) -> np.ndarray:
-        """(N, F) bool -> (N,) class ids, by replaying the history."""
+    def _replay(self, bits: np.ndarray, column: np.ndarray | None = None) -> np.ndarray:
+        """(N, F) bool -> (N,) class ids, by replaying the history; with ``column``, feature
+        f is read in column ``column[f]`` of ``bits``."""
         classes, n_classes = np.zeros(len(bits), dtype=np.int64), 1
         rows = np.arange(len(bits))
         for step in self.history:
@@ -208,13 +273,15 @@ class ClassBDD:
                 feature[c], target[c] = f, n
             n_classes = size
             tested = feature[classes]
-            moves = (tested >= 0) & bits[rows, np.maximum(tested, 0)]
+            at = np.maximum(tested, 0) if column is None else column[np.maximum(tested, 0)]
+            moves = (tested >= 0) & bits[rows, at]
             classes = np.where(moves, target[classes], classes)
         return classes
 
     def state_dict(self) -> dict:
         return {
             "n_features": self.n_features,
+            "in_bdd": self.in_bdd,
             "history": [
                 {"splits": [[c, f, n] for c, (f, n) in step["splits"].items()]}
                 if "splits" in step
@@ -225,29 +292,40 @@ class ClassBDD:
 
     @classmethod
     def from_state_dict(cls, state: dict) -> ClassBDD:
-        """Rebuild the functions by replaying the saved history on the BDD."""
+        """Rebuild the classes from their saved history, in the BDD unless they had left it."""
         classes = cls(state["n_features"])
-        bdd = classes.bdd
-        functions = {0: bdd.true}
         for step in state["history"]:
+            if "merge" in step:
+                classes.history.append({"merge": list(step["merge"])})
+                classes._n_classes = max(step["merge"]) + 1
+            else:
+                classes.history.append({"splits": {c: (f, n) for c, f, n in step["splits"]}})
+                classes._n_classes = max(
+                    [classes._n_classes, *(n + 1 for _, _, n in step["splits"])]
+                )
+        if state.get("in_bdd", True):
+            classes._bdd_step(classes._functions_of_history)
+        else:
+            classes.functions, classes.bdd = None, None
+        classes._update_selected()
+        return classes
+
+    def _functions_of_history(self) -> list:
+        """The classes' functions, built by replaying the history on the BDD."""
+        bdd = self.bdd
+        functions = {0: bdd.true}
+        for step in self.history:
             if "merge" in step:
                 merged: dict[int, object] = {}
                 for c, g in enumerate(step["merge"]):
                     merged[g] = merged.get(g, bdd.false) | functions.get(c, bdd.false)
                 functions = merged
-                classes.history.append({"merge": list(step["merge"])})
                 continue
-            group = {}
-            for c, f, n in step["splits"]:
-                test = classes._var(f)
+            for c, (f, n) in step["splits"].items():
+                test = self._var(f)
                 function = functions.get(c, bdd.false)  # a dropped split's class is empty
                 functions[c], functions[n] = function & ~test, function & test
-                group[c] = (f, n)
-            classes.history.append({"splits": group})
-        size = max(functions) + 1
-        classes.functions = [functions.get(c, bdd.false) for c in range(size)]
-        classes._update_selected()
-        return classes
+        return [functions.get(c, bdd.false) for c in range(self.n_classes)]
 
 
-__all__ = ["BDDTooLarge", "ClassBDD"]
+__all__ = ["ClassBDD"]

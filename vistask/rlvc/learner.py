@@ -12,7 +12,6 @@ solved on the current classes.
 from __future__ import annotations
 
 import time
-import warnings
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field
@@ -22,7 +21,7 @@ import torch
 from tqdm.auto import tqdm
 
 from vistask.features import Compound
-from vistask.rlvc.bdd import BDDTooLarge, ClassBDD
+from vistask.rlvc.bdd import ClassBDD
 from vistask.rlvc.compaction import interchangeable, merge_groups
 from vistask.rlvc.compound_search import find_compound_splits
 from vistask.rlvc.database import InteractionDatabase
@@ -304,13 +303,7 @@ class RLVC:
         values = state_values(q)
         tolerance = self.compaction_tolerance * float(values.max() - values.min())
         groups = merge_groups(q, tolerance)
-        try:
-            self.structure.merge(groups)
-        except BDDTooLarge as error:
-            warnings.warn(f"compaction skipped, the classes stay unmerged: {error}", stacklevel=2)
-            self._splits_since_compaction = 0
-            self.timing.compaction += time.perf_counter() - start  # the failed merge's time
-            return classes, q, 0
+        self.structure.merge(groups)
         classes = groups[classes]
         # A feature whose absence only moves percepts between interchangeable merged classes
         # is not needed either.
