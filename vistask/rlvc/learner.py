@@ -213,7 +213,7 @@ class RLVC:
         classes = self.structure.classify(db.presence)
         bar = tqdm(range(max_stages), desc="RLVC stages", disable=not progress, leave=False)
         for _ in bar:
-            start = time.perf_counter()
+            start, compaction_before = time.perf_counter(), self.timing.compaction
             q = self.solve(db, classes)
             merged = 0
             if self._compaction_due():
@@ -252,7 +252,7 @@ class RLVC:
             if splits:  # the acting Q is solved again when first needed
                 self._pending = (db, classes.clone())
             done = time.perf_counter()
-            self.timing.solve += solved - start
+            self.timing.solve += solved - start - (self.timing.compaction - compaction_before)
             self.timing.split += done - solved
             record = StageRecord(
                 stage=len(self.history),
