@@ -210,12 +210,13 @@ class ClassBDD:
         dropped = []
         counts = bits.sum(axis=0)
         for feature in sorted(self._selected, key=lambda f: counts[column[f]]):
-            rows = bits[:, column[feature]].nonzero()[0]
+            j = column[feature]
+            rows = bits[:, j].nonzero()[0]
             changed = bits[rows]
-            changed[:, column[feature]] = False
+            changed[:, j] = False
             # Classifying with the dropped columns zeroed is classifying with the cofactors.
             if allowed[classes[rows], self._replay(changed, column)].all():
-                bits[rows, column[feature]] = False
+                bits[rows, j] = False
                 dropped.append(feature)
         if not dropped:
             return dropped
