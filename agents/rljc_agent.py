@@ -44,7 +44,7 @@ class RLJCAgent(VisualAgent):
         databases: number of equal databases that ``total_timesteps`` is split into.
         alpha: significance level of the split t-tests (Welch).
         min_count: minimum interactions on each side of a split.
-        max_stages: stage cap of one ``learn`` call.
+        max_stages: stage cap of the stages that follow each database.
         epsilon: share of exploring draws inside a random compatible box, in the later
             databases and in ``predict(deterministic=False)``.
         n_envs: episodes collected side by side on the classes.

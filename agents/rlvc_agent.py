@@ -48,7 +48,7 @@ class RLVCAgent(VisualAgent):
         databases: number of equal databases that ``total_timesteps`` is split into.
         alpha: significance level of the split t-tests (Welch).
         min_count: minimum interactions on each side of a split.
-        max_stages: stage cap of one ``learn`` call.
+        max_stages: stage cap of the stages that follow each database.
         epsilon: exploration rate of the epsilon-greedy databases and of
             ``predict(deterministic=False)``.
         n_envs: episodes collected side by side on the classes, so that features are

@@ -185,16 +185,14 @@ class VisualAgent(SB3Model):
         callback = self._start_learning(callback, name, reset_num_timesteps)
         plan, self._plan = self._plan, None
         if plan is not None and not reset_num_timesteps and sum(plan["sizes"]) == total_timesteps:
-            sizes, stages_left = list(plan["sizes"]), plan["stages_left"]  # a checkpoint's call
+            sizes = list(plan["sizes"])  # a checkpoint's call
         else:
             sizes = [total_timesteps // self.databases] * self.databases
             sizes[0] += total_timesteps - sum(sizes)
-            stages_left = self.max_stages
         while sizes:
             callback.on_rollout_start()
             self._add_database(sizes.pop(0))
             callback.on_rollout_end()
-            stages_before = len(self.learner.history)
             stopped = False
 
             def on_stage(record: StageRecord) -> bool:
@@ -203,16 +201,15 @@ class VisualAgent(SB3Model):
                 self._log_stage(record)
                 return not stopped
 
-            self.learner.learn(self.database, stages_left, progress_bar, on_stage)
-            stages_left -= len(self.learner.history) - stages_before
-            if stopped or stages_left <= 0:
+            self.learner.learn(self.database, self.max_stages, progress_bar, on_stage)
+            if stopped:
                 break
             if checkpoint is not None and sizes:
                 state = self._state()
                 state["resume"] = {
                     "database": self.database.state_dict(),
                     "rng": self._rng.bit_generator.state,
-                    "plan": {"sizes": sizes, "stages_left": stages_left},
+                    "plan": {"sizes": sizes},
                 }
                 save_state(checkpoint, type(self).__name__, state)
         self._end_learning(callback)

@@ -3,13 +3,15 @@
 python scripts/compare_compaction.py                                   # the visual maze
 python scripts/compare_compaction.py --env-kwargs '{"photo": "hubble_deep_field"}'  # Fig. 5
 python scripts/compare_compaction.py --env vistask/PlaceNavigation-v0
+python scripts/compare_compaction.py --env vistask/PlaceNavigation-v0 --methods tree \
+    --interactions 200000 --max-stages 3000
 """
 
 import argparse
 import json
 
 from vistask.cli import positive_int, unit_fraction
-from vistask.experiments.compare_compaction import compare_compaction
+from vistask.experiments.compare_compaction import METHODS, compare_compaction
 
 
 def main() -> None:
@@ -19,12 +21,15 @@ def main() -> None:
     parser.add_argument("--env", default="vistask/VisualMaze-v0", help="Gymnasium env id")
     parser.add_argument("--env-kwargs", type=json.loads, default={}, help="JSON dict for gym.make")
     parser.add_argument("--seeds", type=int, nargs="+", default=[0])
+    parser.add_argument("--methods", nargs="+", choices=METHODS, default=list(METHODS))
     parser.add_argument("--interactions", type=positive_int, default=30_000)
     parser.add_argument(
         "--compact-every", type=positive_int, default=None, help="also compact every N stages"
     )
     parser.add_argument("--tolerance", type=unit_fraction, default=0.02)
-    parser.add_argument("--max-stages", type=positive_int, default=300, help="agents' stage cap")
+    parser.add_argument(
+        "--max-stages", type=positive_int, default=300, help="agents' stage cap per database"
+    )
     parser.add_argument("--out", default=None, help="default runs/compare_compaction-<time>")
     parser.add_argument("--no-progress", action="store_true")
     args = parser.parse_args()
@@ -32,6 +37,7 @@ def main() -> None:
         env_id=args.env,
         env_kwargs=args.env_kwargs,
         seeds=args.seeds,
+        methods=args.methods,
         interactions=args.interactions,
         compact_every=args.compact_every,
         tolerance=args.tolerance,

@@ -198,6 +198,12 @@ def test_a_second_learn_continues_where_the_first_stopped():
     assert agent.num_timesteps == 300 and len(agent.database) == 2700
 
 
+def test_the_stage_cap_holds_per_database_and_every_interaction_is_collected():
+    agent = RLVCAgent(small_maze(), n_words=256, max_stages=1, databases=3, seed=0).learn(1500)
+    assert agent.num_timesteps == 1500 == len(agent.database)
+    assert len(agent.rlvc.history) == 3  # one stage after each database
+
+
 def test_sb3_callbacks_run_once_per_stage_and_can_stop_learning(tmp_path):
     checkpoints = CheckpointCallback(save_freq=2, save_path=str(tmp_path), name_prefix="rlvc")
     calls = []

@@ -28,4 +28,6 @@ def test_maze_test_set_marks_the_oracles_action_optimal():
     assert optimal.any(axis=1).all()
     with pytest.raises(ValueError, match="oracle test set"):
         compare_compaction("vistask/VisualMountainCar-v0", interactions=100)
+    with pytest.raises(ValueError, match="methods must be among"):
+        compare_compaction(methods=["forest"], interactions=100)
     assert np.isin(optimal.sum(axis=1), [1, 2, 3, 4]).all()

@@ -170,6 +170,16 @@ def test_test_views_are_held_out(env):
     np.testing.assert_array_equal(images, env.test_views(per_state=2)[0])
 
 
+def test_training_set_is_the_view_bank_with_each_views_optimal_actions(env, oracle):
+    from vistask.experiments.tasks import PlaceTask
+
+    images, optimal = PlaceTask(env).train_set()
+    assert images.shape == (env.world.n_states * VIEWS, 80, 80, 3)
+    index = 6 * VIEWS + 3  # state 6: place 1, heading 2
+    np.testing.assert_array_equal(images[index], env.views[6, 3])
+    np.testing.assert_array_equal(optimal[index], oracle.optimal_actions([1, 2]))
+
+
 def test_the_disk_cache_round_trips(tmp_path, monkeypatch):
     kwargs = {"rows": 2, "cols": 2, "image_size": 32, "views_per_state": 2, "cache_dir": tmp_path}
     first = PlaceNavigationEnv(**kwargs).views

@@ -32,7 +32,7 @@ METHODS = ("tree", "bdd")
 MEASURES = ("classes", "selected_features", "return_ratio", "test_error", "seconds")
 
 
-def test_error(agent: RLVCAgent, percepts: np.ndarray, optimal: np.ndarray) -> float:
+def action_error(agent: RLVCAgent, percepts: np.ndarray, optimal: np.ndarray) -> float:
     """Share of percepts (N, H, W, 3) whose greedy action is not optimal ((N, A) bool)."""
     actions, _ = agent.predict(percepts)
     return float(1 - optimal[np.arange(len(actions)), actions].mean())
@@ -43,6 +43,7 @@ def run_method(
     env: gym.Env,
     task: Task,
     test_set: tuple[np.ndarray, np.ndarray],
+    train_set: tuple[np.ndarray, np.ndarray] | None,
     interactions: int,
     seed: int,
     agent_kwargs: dict,
@@ -60,18 +61,19 @@ def run_method(
     start = time.perf_counter()
     agent.learn(interactions, tb_log_name=f"{method}-seed{seed}", progress_bar=progress)
     seconds = time.perf_counter() - start
-    percepts, optimal = test_set
     agent.save(out / f"{method}-seed{seed}.pt")
     rlvc = agent.rlvc
     result = {
         "classes": rlvc.n_classes,
         "selected_features": len(rlvc.structure.selected_features),
         "return_ratio": task.evaluate(agent_policy(agent)).mean / task.oracle_return,
-        "test_error": test_error(agent, percepts, optimal),
+        "test_error": action_error(agent, *test_set),
         "seconds": seconds,
         "compaction_seconds": rlvc.timing.compaction,
         "stages": len(rlvc.history),
     }
+    if train_set is not None:
+        result["train_error"] = action_error(agent, *train_set)
     history = [{"classes": r.classes, "features": r.selected_features} for r in rlvc.history]
     return result, history
 
@@ -104,6 +106,7 @@ def compare_compaction(
     env_id: str = "vistask/VisualMaze-v0",
     env_kwargs: dict | None = None,
     seeds: list[int] | tuple[int, ...] = (0,),
+    methods: list[str] | tuple[str, ...] = METHODS,
     interactions: int = 30_000,
     compact_every: int | None = None,
     tolerance: float = 0.02,
@@ -123,6 +126,7 @@ def compare_compaction(
         env_id, env_kwargs: an env that ``task_for`` knows (the maze, its real-image option,
             place navigation).
         seeds: one run per method and seed.
+        methods: ``tree``, ``bdd`` or both.
         interactions: interactions per run.
         compact_every, tolerance: the BDD agent's ``compact_every`` and
             ``compaction_tolerance``.
@@ -131,6 +135,8 @@ def compare_compaction(
         progress: show progress bars.
     """
     env_kwargs = env_kwargs or {}
+    if not methods or set(methods) - set(METHODS):
+        raise ValueError(f"methods must be among {METHODS}, got {methods!r}")
     task = task_for(env_id, env_kwargs)
     if task is None or not hasattr(task, "test_set"):
         raise ValueError(
@@ -139,17 +145,30 @@ def compare_compaction(
         )
     out = run_dir("compare_compaction", out)
     env, test_set = gym.make(env_id, **env_kwargs), task.test_set()
+    # Training percepts whose true states are known (place navigation's view bank): their
+    # error against the test error tells a classifier that underfits from one that overfits.
+    train_set = task.train_set() if hasattr(task, "train_set") else None
+    measures = MEASURES + (("train_error",) if train_set is not None else ())
     agent_kwargs = {
         "compact_every": compact_every,
         "compaction_tolerance": tolerance,
         "max_stages": max_stages,
     }
-    runs = {m: [] for m in METHODS}
-    histories = {m: [] for m in METHODS}
+    runs = {m: [] for m in methods}
+    histories = {m: [] for m in methods}
     for seed in seeds:
-        for method in METHODS:
+        for method in methods:
             result, history = run_method(
-                method, env, task, test_set, interactions, seed, agent_kwargs, out, progress
+                method,
+                env,
+                task,
+                test_set,
+                train_set,
+                interactions,
+                seed,
+                agent_kwargs,
+                out,
+                progress,
             )
             runs[method].append({"seed": seed, **result})
             histories[method].append(history)
@@ -162,14 +181,15 @@ def compare_compaction(
         "max_stages": max_stages,
         "seeds": list(seeds),
     }
-    for method in METHODS:
-        values = {key: [r[key] for r in runs[method]] for key in MEASURES}
+    for method in methods:
+        values = {key: [r[key] for r in runs[method]] for key in measures}
         means = {key: float(np.mean(v)) for key, v in values.items()}
         iqm = statistics.iqm_intervals(values)  # [iqm, low, high] per measure
         summary[method] = {**means, "iqm": iqm, "runs": runs[method]}
-    summary["compaction_share_of_time"] = float(
-        np.mean([r["compaction_seconds"] / r["seconds"] for r in runs["bdd"]])
-    )
+    if "bdd" in runs:
+        summary["compaction_share_of_time"] = float(
+            np.mean([r["compaction_seconds"] / r["seconds"] for r in runs["bdd"]])
+        )
     summary["pictures"] = {"sawtooth": str(plot_sawtooth(histories, out / "sawtooth.png"))}
     if isinstance(task, PlaceTask):
         Image.fromarray(draw_world(task.env)).save(out / "world.png")
@@ -177,7 +197,7 @@ def compare_compaction(
         Image.fromarray(view_sheet(task.env, state)).save(out / "views.png")
         summary["pictures"] |= {"world": str(out / "world.png"), "views": str(out / "views.png")}
     write_summary(out, summary)
-    for method in METHODS:
-        print_table({key: summary[method][key] for key in MEASURES}, title=f"{method} RLVC")
+    for method in methods:
+        print_table({key: summary[method][key] for key in measures}, title=f"{method} RLVC")
     print(f"results in {out}")
     return summary
