@@ -119,7 +119,8 @@ def compare_compaction(
     Both learn with ``RLVCAgent``'s defaults; the BDD agent also compacts when learning
     stops (and every ``compact_every`` stages if given) with ``tolerance``. Writes
     ``summary.json`` (per method: the mean of each measure over seeds, its IQM with a 95%
-    interval, and the per-seed values),
+    interval, and the per-seed values; on place navigation also ``train_error``, the test
+    error's measure on the training views),
     ``sawtooth.png`` and, for place navigation, ``world.png`` and ``views.png`` to ``out``.
 
     Args:
