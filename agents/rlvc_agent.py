@@ -19,10 +19,11 @@ class RLVCAgent(VisualAgent):
     ``learn(total_timesteps)`` collects ``databases`` equal databases of interactions, one
     after the other: the first with uniformly random actions, each later one epsilon-greedily
     on the classes learned so far (``n_envs`` episodes side by side), each added to the earlier
-    ones. After each database, RLVC stages run until no class splits: SIFT keypoints of every
-    percept are extracted once, matched to a vocabulary of ``n_words`` visual features (fitted
-    on the first database), and classes are split where a feature reduces the variance of the
-    TD errors significantly. A second ``learn`` call continues: more databases, more stages.
+    ones. After each database, RLVC stages run until no class splits (or ``max_stages``): SIFT
+    keypoints of every percept are extracted once, matched to a vocabulary of ``n_words``
+    visual features (fitted on the first database), and classes are split where a feature
+    reduces the variance of the TD errors significantly. A second ``learn`` call continues:
+    more databases, more stages.
 
     Episodes end where the env ends them: its terminal states and its own time limit (the
     ``max_episode_steps`` of ``gym.make``); wrap an env without one in ``TimeLimit``.
