@@ -841,10 +841,16 @@ class PlaceNavigationEnv(gym.Env):
             images (N, H, W, 3) uint8 and their states (N, 2) (place, heading), N = states *
             per_state, state-major.
         """
-        bank = self.test_bank(per_state)
-        images = bank.reshape(-1, *bank.shape[2:])
-        states = np.repeat(self.world.states_of(np.arange(self.world.n_states)), per_state, axis=0)
-        return images, states
+        return self._flat(self.test_bank(per_state))
+
+    def training_views(self) -> tuple[np.ndarray, np.ndarray]:
+        """The training bank (``views``) as images (N, H, W, 3) uint8 and their states (N, 2),
+        N = states * views_per_state, state-major."""
+        return self._flat(self.views)
+
+    def _flat(self, bank: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        states = self.world.states_of(np.arange(self.world.n_states))
+        return bank.reshape(-1, *bank.shape[2:]), np.repeat(states, bank.shape[1], axis=0)
 
     def percept(self, state, view: int) -> np.ndarray:
         """View ``view`` of the bank of ``state`` (place, heading) (a fresh array)."""

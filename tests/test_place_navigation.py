@@ -170,13 +170,16 @@ def test_test_views_are_held_out(env):
     np.testing.assert_array_equal(images, env.test_views(per_state=2)[0])
 
 
-def test_training_set_is_the_view_bank_with_each_views_optimal_actions(env, oracle):
+def test_training_views_are_the_bank_and_the_task_marks_their_optimal_actions(env, oracle):
     from vistask.experiments.tasks import PlaceTask
 
-    images, optimal = PlaceTask(env).train_set()
+    images, states = env.training_views()
     assert images.shape == (env.world.n_states * VIEWS, 80, 80, 3)
     index = 6 * VIEWS + 3  # state 6: place 1, heading 2
     np.testing.assert_array_equal(images[index], env.views[6, 3])
+    np.testing.assert_array_equal(states[index], [1, 2])
+    percepts, optimal = PlaceTask(env).train_set()
+    np.testing.assert_array_equal(percepts, images)
     np.testing.assert_array_equal(optimal[index], oracle.optimal_actions([1, 2]))
 
 

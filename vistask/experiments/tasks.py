@@ -125,11 +125,9 @@ class PlaceTask:
         return percepts, self.oracle.optimal_actions(states)
 
     def train_set(self) -> tuple[np.ndarray, np.ndarray]:
-        """The training views (N, H, W, 3) of every state (the env's bank, state-major) and
-        (N, 3) bool: the optimal actions."""
-        world, bank = self.env.world, self.env.views
-        states = np.repeat(world.states_of(np.arange(world.n_states)), bank.shape[1], axis=0)
-        return bank.reshape(-1, *bank.shape[2:]), self.oracle.optimal_actions(states)
+        """Training views (N, H, W, 3) of every state and (N, 3) bool: the optimal actions."""
+        percepts, states = self.env.training_views()
+        return percepts, self.oracle.optimal_actions(states)
 
 
 Task = MazeTask | CarTask | PlaceTask
