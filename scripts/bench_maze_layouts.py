@@ -2,7 +2,7 @@
 
 python scripts/bench_maze_layouts.py                 # layouts 1-10, writes summary.json
 python scripts/bench_maze_layouts.py --layouts 3 7   # some layouts only
-python scripts/bench_maze_layouts.py --workers 2     # two runs side by side (Ray)
+python scripts/bench_maze_layouts.py --workers 2     # two runs side by side
 """
 
 import argparse
@@ -18,9 +18,7 @@ def main() -> None:
     parser.add_argument("--layouts", nargs="+", type=int, default=list(range(1, 11)))
     parser.add_argument("--seed", type=int, default=0, help="the agent's seed")
     parser.add_argument("--out", default=None, help="default runs/bench_maze_layouts-<time>")
-    parser.add_argument(
-        "--workers", type=positive_int, default=1, help="runs side by side (more than 1: Ray)"
-    )
+    parser.add_argument("--workers", type=positive_int, default=1, help="runs side by side")
     parser.add_argument("--address", default=None, help="Ray cluster (default: RAY_ADDRESS)")
     args = parser.parse_args()
     bench_maze_layouts(

@@ -1,6 +1,6 @@
-"""Independent runs side by side: the quick comparison on 1 and N Ray workers, and grasp trials
-in AsyncVectorEnv processes and Ray actors on 1 and N workers; speed-ups and whether the
-results stay identical.
+"""Independent runs side by side: the quick comparison on 1 worker and on N worker processes and
+N Ray workers, and grasp trials in AsyncVectorEnv processes and Ray actors on 1 and N workers;
+speed-ups and whether the results stay identical.
 
 python scripts/bench_parallel.py                        # workers 1 and all cores, 200 trials
 python scripts/bench_parallel.py --parts grasps --trials 60 --workers 1 2 4

@@ -14,8 +14,8 @@ RANSAC restarts, FGR, multi-scale point-to-plane ICP and coloured ICP.
 Writes DIR/summary.json (per method and condition: success, ci_low, ci_high,
 seconds_per_scene, median errors, per_object), DIR/results.md (the Markdown table),
 DIR/pictures/ (estimates drawn over the images) and TensorBoard scalars.
---workers N spreads the scenes over N local Ray workers (one thread each), --address over a
-Ray cluster; the records are the same as in one process with --threads 1."""
+--workers N spreads the scenes over N cores (one thread each), --address over a Ray cluster;
+the records are the same as in one process with --threads 1."""
 
 from __future__ import annotations
 
@@ -68,9 +68,7 @@ def main() -> None:
     parser.add_argument(
         "--pictures", type=non_negative_int, default=1, help="pictures per object, condition"
     )
-    parser.add_argument(
-        "--workers", type=positive_int, default=1, help="scenes side by side (Ray workers)"
-    )
+    parser.add_argument("--workers", type=positive_int, default=1, help="scenes side by side")
     parser.add_argument("--address", default=None, help="Ray cluster to run the scenes on")
     args = parser.parse_args()
     out = run_dir("bench_pose", args.out)

@@ -12,8 +12,9 @@ python scripts/compare_baselines.py --workers 1          # one run after another
 python scripts/compare_baselines.py --out runs/c         # again after a stop: runs what is missing
 tensorboard --logdir runs/compare-<time>/tensorboard     # eval/return of every method overlays
 
-The runs are Ray tasks on this machine's cores unless --workers 1; --address (or RAY_ADDRESS)
-sends them to a Ray cluster whose nodes have vistask installed.
+The runs go side by side on this machine's cores (this process and worker processes) unless
+--workers 1; --address (or RAY_ADDRESS) sends them to a Ray cluster whose nodes have vistask
+installed, and --address local to a Ray started on this machine.
 """
 
 import argparse
@@ -53,13 +54,15 @@ def main() -> None:
         "--threads",
         type=positive_int,
         default=None,
-        help="torch CPU threads with --workers 1 (Ray gives each run one thread)",
+        help="torch CPU threads with --workers 1 (side by side, each run has one thread)",
     )
     parser.add_argument(
         "--workers", type=positive_int, default=None, help="runs side by side (default: cores)"
     )
     parser.add_argument(
-        "--address", default=None, help="Ray cluster address (default: RAY_ADDRESS, else local)"
+        "--address",
+        default=None,
+        help="Ray cluster address, or 'local' (default: RAY_ADDRESS, else no Ray)",
     )
     parser.add_argument("--quick", action="store_true", help="tiny budgets, 2 seeds")
     parser.add_argument(

@@ -25,7 +25,7 @@ from vistask.experiments.tasks import GridCells, task_for
 @pytest.fixture(scope="module")
 def quick_run(tmp_path_factory):
     out = tmp_path_factory.mktemp("compare")
-    # Two Ray workers, one thread each: the path a user's default run takes.
+    # Two worker processes, one thread each: the path a user's default run takes.
     return out, compare(Comparison.quick(), out, progress=False, workers=2)
 
 
@@ -138,6 +138,17 @@ def test_a_comparison_resumes_where_it_stopped(tmp_path):
     assert returns(again) == returns(first)
     with pytest.raises(ValueError, match=r"other settings \(seeds\)"):
         compare(_quick_rlvc_and_random(seeds=3), tmp_path, progress=False, workers=1)
+
+
+@pytest.mark.slow
+def test_worker_processes_and_a_local_ray_give_the_returns_of_one_process(tmp_path):
+    config = _quick_rlvc_and_random(budgets=(200,))
+    returns = lambda s: sorted((r["method"], r["seed"], r["returns"]) for r in s["runs"])  # noqa: E731
+    alone = compare(config, tmp_path / "alone", progress=False, workers=1)
+    processes = compare(config, tmp_path / "processes", progress=False, workers=2)
+    ray = compare(config, tmp_path / "ray", progress=False, workers=2, address="local")
+    assert returns(processes) == returns(alone) == returns(ray)
+    assert len(alone["runs"]) == 4
 
 
 def test_a_failed_run_is_reported_and_the_others_finish(tmp_path, monkeypatch):

@@ -77,7 +77,7 @@ def test_bad_bench_configs_are_clear_errors() -> None:
 
 
 @pytest.mark.slow
-def test_scenes_spread_over_ray_workers_give_the_records_of_one_process(tmp_path) -> None:
+def test_scenes_spread_over_two_workers_give_the_records_of_one_process(tmp_path) -> None:
     import os
 
     import torch
@@ -87,7 +87,7 @@ def test_scenes_spread_over_ray_workers_give_the_records_of_one_process(tmp_path
         objects=("box",), n_scenes=2, conditions=("one_camera",), image_size=96, n_rotations=2
     )
     threads = torch.get_num_threads()
-    torch.set_num_threads(1)  # as each Ray worker runs
+    torch.set_num_threads(1)  # as each worker runs
     try:
         alone = bench.run(tmp_path / "alone", log=None, workers=1, pictures=1)
     finally:

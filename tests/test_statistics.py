@@ -51,9 +51,9 @@ def test_profiles_and_improvement_count_runs():
     assert metrics["Optimality gap"][0] == pytest.approx(1 - 0.625)
 
 
-def test_map_runs_reports_failures_and_finishes_the_rest_in_process_and_on_ray():
-    for workers in (1, 2):
-        outcomes = map_runs(json.loads, ["4", "[1,", "9"], workers=workers)
+def test_map_runs_reports_failures_and_finishes_the_rest_wherever_it_runs():
+    for workers, address in ((1, None), (2, None), (2, "local")):  # process, processes, Ray
+        outcomes = map_runs(json.loads, ["4", "[1,", "9"], workers, address)
         by_item = {o.item: o for o in outcomes}
         assert by_item["4"].result == 4 and by_item["9"].result == 9
         assert not by_item["[1,"].ok and "JSONDecodeError" in by_item["[1,"].error

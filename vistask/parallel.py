@@ -1,28 +1,42 @@
-"""Independent runs spread over cores or a cluster with Ray, or run one after another.
+"""Independent runs spread over this machine's cores or a Ray cluster, or run one after another.
 
 ``map_runs(fn, items)`` calls ``fn(item)`` for every item and hands each outcome to a callback
-as soon as it is known, in the order the runs finish. With ``workers=1`` (and no cluster
-address) it runs in this process, which is what a debugger wants; otherwise every call is a
-Ray task on one CPU. A run that raises does not stop the others: its outcome carries the
-error text instead of a result.
+as soon as it is known, in the order the runs finish. A run that raises does not stop the
+others: its outcome carries the error text instead of a result. Where the runs go:
 
-Ray: a local Ray is started with ``workers`` CPUs (default: all cores) and shut down at the
-end; ``address`` (or the ``RAY_ADDRESS`` environment variable) connects to a running cluster
-instead, whose nodes must have vistask installed. Inside a task Ray sets one thread per
-CPU, so runs side by side do not fight over cores.
+- ``workers=1`` and no cluster: one after another in this process, which is what a debugger
+  wants;
+- no cluster (the default): ``workers`` side by side on this machine (default: one per core),
+  this process and ``workers - 1`` processes forked from a server process that has imported
+  ``fn``'s module once. This process starts at once and the others in seconds, where a local
+  Ray took 5 s to start its workers and import the modules in them;
+- ``address`` (or the ``RAY_ADDRESS`` environment variable): Ray tasks on the running cluster
+  there, whose nodes must have vistask installed; ``address="local"`` starts a Ray on this
+  machine with ``workers`` CPUs instead, and shuts it down at the end.
+
+Each worker, process or Ray task, runs torch, OpenCV and SIFT on one thread, so that runs side
+by side do not fight over cores and give the results of one run in one thread.
 """
 
 from __future__ import annotations
 
+import multiprocessing
 import os
+import queue
 import re
+import threading
 import traceback
+from collections import deque
 from collections.abc import Callable, Iterable, Iterator
+from concurrent.futures import Future, ProcessPoolExecutor
 from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Any
 
 _ANSI = re.compile(r"\x1b\[[0-9;]*m")
+# Imported once by the process server, not by every worker: torch imports its compiler
+# (1.6 s) at the first optimizer a process makes.
+PRELOAD = ("torch._dynamo",)
 
 
 @dataclass
@@ -39,20 +53,47 @@ class Outcome:
 
 
 def cluster_address(address: str | None = None) -> str | None:
-    """``address`` if given, else ``RAY_ADDRESS`` from the environment (None: no cluster)."""
+    """``address`` if given, else ``RAY_ADDRESS`` from the environment (None: no cluster;
+    ``"local"``: a Ray started on this machine)."""
     return address or os.environ.get("RAY_ADDRESS") or None
 
 
-def in_process(workers: int | None, address: str | None = None) -> bool:
-    """True when runs go one after another in this process: one worker and no cluster."""
-    return workers == 1 and cluster_address(address) is None
+def one_thread() -> None:
+    """Run torch, OpenCV and SIFT's batches on one thread in this process (a worker's setting;
+    SIFT's batches follow ``OMP_NUM_THREADS``, which Ray sets in its tasks)."""
+    import cv2
+    import torch
+
+    os.environ["OMP_NUM_THREADS"] = "1"
+    torch.set_num_threads(1)
+    cv2.setNumThreads(1)
+
+
+@contextmanager
+def worker_threads() -> Iterator[None]:
+    """This process on one thread, as a worker (``one_thread``), inside the block."""
+    import cv2
+    import torch
+
+    saved = torch.get_num_threads(), cv2.getNumThreads(), os.environ.get("OMP_NUM_THREADS")
+    one_thread()
+    try:
+        yield
+    finally:
+        torch.set_num_threads(saved[0])
+        cv2.setNumThreads(saved[1])
+        if saved[2] is None:
+            os.environ.pop("OMP_NUM_THREADS", None)
+        else:
+            os.environ["OMP_NUM_THREADS"] = saved[2]
 
 
 @contextmanager
 def ray_session(workers: int | None = None, address: str | None = None) -> Iterator[Any]:
     """The ``ray`` module, initialised: connected to the cluster at ``address`` (or
-    ``RAY_ADDRESS``), or a local Ray with ``workers`` CPUs (default: all cores). A Ray started
-    here is shut down on exit; one already running is left as it is."""
+    ``RAY_ADDRESS``), or with None or ``"local"`` a local Ray with ``workers`` CPUs (default:
+    all cores). A Ray started here is shut down on exit; one already running is left as it
+    is."""
     import ray
 
     if ray.is_initialized():
@@ -61,7 +102,7 @@ def ray_session(workers: int | None = None, address: str | None = None) -> Itera
     address = cluster_address(address)
     if workers is not None and workers < 1:
         raise ValueError(f"workers must be >= 1, got {workers}")
-    if address is None:
+    if address in (None, "local"):
         ray.init(
             num_cpus=workers or os.cpu_count(),
             include_dashboard=False,
@@ -82,7 +123,7 @@ def map_runs(
     address: str | None = None,
     on_outcome: Callable[[Outcome], None] | None = None,
 ) -> list[Outcome]:
-    """``fn(item)`` for every item, in this process or as Ray tasks.
+    """``fn(item)`` for every item: in this process, in worker processes, or as Ray tasks.
 
     Example:
         >>> outcomes = map_runs(train_one, [("rlvc", 0), ("dqn", 0)], workers=2)
@@ -91,8 +132,10 @@ def map_runs(
     Args:
         fn: a picklable top-level function of one argument.
         items: its arguments, one run each.
-        workers: CPUs of the local Ray (default: all cores); 1 runs in this process.
-        address: Ray cluster to run on (default ``RAY_ADDRESS``; None: local).
+        workers: runs side by side on this machine (default: one per core); 1 runs them in
+            this process.
+        address: Ray cluster to run on (default ``RAY_ADDRESS``; None: this machine;
+            ``"local"``: a Ray started here).
         on_outcome: called with each outcome as soon as its run ends.
 
     Returns:
@@ -106,14 +149,80 @@ def map_runs(
         if on_outcome is not None:
             on_outcome(outcome)
 
-    if in_process(workers, address):
+    if workers is not None and workers < 1:
+        raise ValueError(f"workers must be >= 1, got {workers}")
+    if cluster_address(address) is not None:
+        _map_ray(fn, items, workers, address, done)
+    elif min(workers or os.cpu_count() or 1, len(items)) <= 1:
         for item in items:
-            try:
-                done(Outcome(item, result=fn(item)))
-            except Exception:
-                done(Outcome(item, error=traceback.format_exc()))
-        return outcomes
+            done(_run_here(fn, item))
+    else:
+        _map_processes(fn, items, min(workers or os.cpu_count() or 1, len(items)), done)
+    return outcomes
 
+
+def _run_here(fn: Callable[[Any], Any], item: Any) -> Outcome:
+    try:
+        return Outcome(item, result=fn(item))
+    except Exception:
+        return Outcome(item, error=traceback.format_exc())
+
+
+def _map_processes(fn, items: list, workers: int, done: Callable[[Outcome], None]) -> None:
+    # This process runs runs too, beside workers - 1 processes: it has imported everything,
+    # where a new process takes seconds to import torch and the rest. Each takes the next run
+    # in the list when it ends its last.
+    # forkserver, not fork: a process forked from one whose torch or OpenCV thread pools ran
+    # hangs at its first parallel call.
+    context = multiprocessing.get_context("forkserver")
+    context.set_forkserver_preload([*PRELOAD, fn.__module__])
+    pool = ProcessPoolExecutor(workers - 1, mp_context=context, initializer=one_thread)
+    todo, lock = deque(items), threading.Lock()
+    ended: queue.SimpleQueue[Outcome] = queue.SimpleQueue()  # the processes' runs, as they end
+
+    def take() -> tuple[bool, Any]:
+        with lock:
+            return (True, todo.popleft()) if todo else (False, None)
+
+    def outcome(item: Any, future: Future) -> Outcome:
+        try:
+            return Outcome(item, result=future.result())
+        except Exception:
+            return Outcome(item, error=traceback.format_exc())
+
+    def feed() -> None:  # also in the pool's thread, as a run ends
+        found, item = take()
+        if not found:
+            return
+        try:
+            future = pool.submit(fn, item)
+        except Exception:  # the pool is broken or shut down
+            ended.put(Outcome(item, error=traceback.format_exc()))
+            return
+        future.add_done_callback(lambda f: (ended.put(outcome(item, f)), feed()))
+
+    # The first submission waits for the process server to import the modules: this process
+    # runs runs meanwhile.
+    starter = threading.Thread(target=lambda: [feed() for _ in range(workers - 1)], daemon=True)
+    try:
+        with worker_threads():
+            starter.start()
+            remaining = len(items)
+            while remaining:
+                found, item = take()
+                done(_run_here(fn, item) if found else ended.get())
+                remaining -= 1
+                while remaining and not ended.empty():
+                    done(ended.get())
+                    remaining -= 1
+            starter.join()
+    finally:
+        with lock:
+            todo.clear()
+        pool.shutdown(cancel_futures=True)
+
+
+def _map_ray(fn, items: list, workers, address, done: Callable[[Outcome], None]) -> None:
     with ray_session(workers, address) as ray:
         remote = ray.remote(num_cpus=1, max_retries=0)(fn)
         pending = {remote.remote(item): item for item in items}
@@ -124,4 +233,3 @@ def map_runs(
                 done(Outcome(item, result=ray.get(ref)))
             except Exception as error:  # RayTaskError wraps the run's own exception
                 done(Outcome(item, error=_ANSI.sub("", str(error))))
-    return outcomes

@@ -1,6 +1,6 @@
 """Independent runs side by side (``scripts/bench_parallel.py``): the quick comparison with one
-and with W Ray workers, and grasp trials in gymnasium's ``AsyncVectorEnv`` processes and in
-Ray actors with one and with W workers.
+worker and with W worker processes and W Ray workers, and grasp trials in gymnasium's
+``AsyncVectorEnv`` processes and in Ray actors with one and with W workers.
 
 Every configuration runs the same work, one configuration after another, so the speed-ups are
 ratios measured in one run; each row also says whether its results equal the one-worker
@@ -18,6 +18,7 @@ import torch
 
 from vistask.experiments.compare import Comparison, compare
 from vistask.grasp import demonstration_density, run_trials, scripted_teacher_grasps
+from vistask.parallel import worker_threads
 from vistask.runs import run_dir, write_summary
 
 
@@ -26,23 +27,23 @@ def _returns(summary: dict) -> list:
 
 
 def bench_comparison(workers: Sequence[int], out: Path) -> list[dict]:
-    """``Comparison.quick()`` with each worker count. One worker runs in this process with
-    one torch thread, as each Ray worker does, so that the results can be equal."""
+    """``Comparison.quick()`` with each worker count: one worker in this process on one thread,
+    as each worker runs, so that the results can be equal; more workers as processes and as
+    the tasks of a Ray started for them."""
     rows, reference = [], None
-    for n in workers:
-        threads = torch.get_num_threads()
-        torch.set_num_threads(1)
-        try:
+    runs = [("in process", 1, None)] if 1 in workers else []
+    for runner, address in (("processes", None), ("ray", "local")):
+        runs += [(runner, n, address) for n in workers if n > 1]
+    for runner, n, address in runs:
+        with worker_threads():
             t0 = time.perf_counter()
-            summary = compare(Comparison.quick(), out / f"compare-{n}", progress=False, workers=n)
+            summary = compare(Comparison.quick(), out / f"compare-{runner}-{n}", False, n, address)
             seconds = time.perf_counter() - t0
-        finally:
-            torch.set_num_threads(threads)
         reference = reference or _returns(summary)
         rows.append(
             {
                 "work": "quick comparison",
-                "runner": "map_runs",  # in this process with 1 worker, Ray tasks beyond
+                "runner": runner,
                 "workers": n,
                 "seconds": seconds,
                 "same_results": _returns(summary) == reference,
@@ -113,8 +114,12 @@ def bench_parallel(
         rows += bench_comparison(workers, out)
     if "grasps" in parts:
         rows += bench_grasp_trials(workers, trials)
-    for row in rows:  # against the same work on the same runner with the fewest workers
-        same = [r for r in rows if (r["work"], r["runner"]) == (row["work"], row["runner"])]
+    for row in rows:  # against the same work on the same runner (or in process), fewest workers
+        same = [
+            r
+            for r in rows
+            if r["work"] == row["work"] and r["runner"] in (row["runner"], "in process")
+        ]
         row["speedup"] = min(same, key=lambda r: r["workers"])["seconds"] / row["seconds"]
     summary = {"workers": workers, "cpus": os.cpu_count(), "rows": rows}
     write_summary(out, summary)

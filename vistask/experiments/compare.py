@@ -8,7 +8,7 @@ Every method is scored at every budget B (environment interactions) by its task'
 the mean discounted return from the same fixed starts with the same noise. RLVC
 (and RLJC) learns from one fixed database, so its checkpoint at B is a fresh agent learned on B
 interactions; the other learners train once per seed and are evaluated when they pass B.
-These independent runs go to Ray (``vistask.parallel``) and each lands in ``runs.jsonl`` as it
+These independent runs go side by side (``vistask.parallel``) and each lands in ``runs.jsonl`` as it
 ends, so that a stopped comparison resumes. Curves are aggregated over seeds with rliable
 (``statistics.py``): interquartile mean (IQM) with stratified-bootstrap confidence intervals,
 performance profiles and probabilities of improvement.
@@ -34,7 +34,7 @@ from vistask.checks import check_at_least
 from vistask.envs.maze_oracle import Policy
 from vistask.experiments import statistics
 from vistask.experiments.tasks import GridCells, Task, task_for
-from vistask.parallel import Outcome, in_process, map_runs, ray_session
+from vistask.parallel import Outcome, cluster_address, map_runs, ray_session
 from vistask.rlvc import random_policy
 from vistask.runs import check_same_settings, print_table, run_dir, tensorboard, write_summary
 
@@ -414,9 +414,9 @@ def _cached_task(env_id: str, env_kwargs: str, eval_starts: int) -> Task | None:
 
 
 def execute(job: tuple[Comparison, RunSpec]) -> tuple[RunResult, dict[str, bytes]]:
-    """One run wherever it executes (this process, a Ray worker, a cluster node): its result
-    and its TensorBoard files (path under ``tensorboard/`` -> bytes), which the caller
-    writes into the comparison's folder."""
+    """One run wherever it executes (this process, a worker process, a Ray cluster's node):
+    its result and its TensorBoard files (path under ``tensorboard/`` -> bytes), which the
+    caller writes into the comparison's folder."""
     config, spec = job
     task = _task(config)
     with tempfile.TemporaryDirectory() as tmp:
@@ -657,7 +657,7 @@ def plot_wallclock(path: Path, methods: dict[str, dict], oracle: float) -> None:
     ax.axhline(oracle, color="k", linestyle="--", label="oracle (true state)")
     ax.axhline(0.9 * oracle, color="k", linestyle=":", label="90% of oracle")
     ax.set_xscale("log")
-    ax.set_xlabel("training seconds (median over seeds; one CPU thread in a Ray worker)")
+    ax.set_xlabel("training seconds (median over seeds; one CPU thread a run)")
     ax.set_ylabel("IQM discounted return")
     ax.legend(fontsize="small")
     ax.grid(alpha=0.3)
@@ -687,12 +687,12 @@ def compare(
 ) -> dict:
     """Run every method with every seed, aggregate and write all outputs.
 
-    The runs are independent (``RunSpec``) and go to ``vistask.parallel.map_runs``: Ray tasks
-    on this machine's cores by default, on a Ray cluster with ``address``, one after another
-    in this process with ``workers=1``. Each finished run is appended to ``runs.jsonl`` at
-    once; calling ``compare`` again on the same ``out`` with the same settings runs only what
-    is missing (runs that failed or never ran). A run that fails is reported with its error
-    (``summary["failed"]``) and the others go on.
+    The runs are independent (``RunSpec``) and go to ``vistask.parallel.map_runs``: side by
+    side on this machine's cores by default (this process and worker processes), on a Ray
+    cluster with ``address``, one after another in this process with ``workers=1``. Each
+    finished run is appended to ``runs.jsonl`` at once; calling ``compare`` again on the same
+    ``out`` with the same settings runs only what is missing (runs that failed or never ran).
+    A run that fails is reported with its error (``summary["failed"]``) and the others go on.
 
     Writes under ``out`` (default ``runs/compare-<time>/``): ``comparison.json`` (settings),
     ``runs.jsonl``, ``curves.csv``, ``table.md``, ``summary.json``, rliable's pictures
@@ -705,8 +705,9 @@ def compare(
         config: the comparison (default ``Comparison()``, the full run).
         out: run directory; an existing one with the same settings is resumed.
         progress: print one line per finished run.
-        workers: CPUs of the local Ray (default: all cores); 1 runs in this process.
-        address: a Ray cluster to run on (default: ``RAY_ADDRESS`` if set, else local).
+        workers: runs side by side (default: all cores); 1 runs them in this process.
+        address: a Ray cluster to run on (default: ``RAY_ADDRESS`` if set, else no Ray;
+            ``"local"``: a Ray started here).
 
     Returns:
         The summary written to ``summary.json``.
@@ -757,7 +758,8 @@ def compare(
     if config.grid is None and "tabular" in config.methods:
         phases = [[m for m in config.methods if m != "tabular"], ["tabular"]]
     grid = config.grid
-    session = nullcontext() if in_process(workers, address) else ray_session(workers, address)
+    # One Ray session for both phases; worker processes start fast enough to start per phase.
+    session = nullcontext() if cluster_address(address) is None else ray_session(workers, address)
     with session:
         for phase in phases:
             if phase == ["tabular"] and grid is None:

@@ -15,7 +15,7 @@ from vistask.runs import run_dir, write_summary
 
 
 def _layout_run(job: tuple[int, int, int, Path]) -> dict:
-    """One layout's run (in this process or a Ray worker)."""
+    """One layout's run (in this process, a worker process or a Ray worker)."""
     layout_seed, interactions, seed, out = job
     run = train_rlvc(
         env_kwargs={"layout_seed": layout_seed},
@@ -45,8 +45,8 @@ def bench_maze_layouts(
         seed: the agent's seed.
         out: run directory (default ``runs/bench_maze_layouts-<time>``).
         workers: runs side by side (``vistask.parallel.map_runs``: 1 runs them one after
-            another in this process, more are Ray tasks; None: all cores).
-        address: a Ray cluster to run on (default: ``RAY_ADDRESS`` if set, else local).
+            another in this process; None: all cores).
+        address: a Ray cluster to run on (default: ``RAY_ADDRESS`` if set, else no Ray).
 
     Returns:
         The summary written to ``out/summary.json``: ``layouts``, a list of

@@ -438,8 +438,8 @@ class PoseBenchmark:
         """Learn each object's model, estimate its pose in every test scene with every method.
 
         The scenes are independent runs (``vistask.parallel.map_runs``): one after another in
-        this process by default, or side by side on ``workers`` local Ray workers or a Ray
-        cluster at ``address``, with the same records (each Ray worker runs one thread, as
+        this process by default, or side by side on ``workers`` cores or a Ray cluster at
+        ``address``, with the same records (each worker runs one thread, as
         ``scripts/bench_pose.py`` does by default). A scene that fails is reported under
         ``failed`` and the others go on.
 

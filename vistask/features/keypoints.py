@@ -63,8 +63,8 @@ def check_image_space(space, user: str) -> None:
 
 
 def _allowed_threads() -> int:
-    # Ray runs each task with OMP_NUM_THREADS set to its CPUs: runs side by side would
-    # otherwise each start a thread per core.
+    # Ray runs each task with OMP_NUM_THREADS set to its CPUs, as vistask.parallel's workers
+    # run with 1: runs side by side would otherwise each start a thread per core.
     allowed = os.environ.get("OMP_NUM_THREADS", "")
     return int(allowed) if allowed.isdigit() and int(allowed) > 0 else os.cpu_count() or 1
 
@@ -82,7 +82,7 @@ class SiftExtractor:
         max_keypoints: keep at most this many strongest keypoints per image (0: all).
         color_weight: weight of the 2-D chromaticity appended to each descriptor (0: grey SIFT).
         threads: worker threads for ``batch`` (default: ``OMP_NUM_THREADS`` where it is set, as
-            Ray sets it to a task's CPUs, else all cores). OpenCV releases the GIL.
+            Ray and ``vistask.parallel``'s workers set it, else all cores). OpenCV releases the GIL.
     """
 
     def __init__(
