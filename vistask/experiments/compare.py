@@ -604,10 +604,10 @@ def final_statistics(methods: dict[str, dict], learner: str | None) -> dict[str,
     scores = {
         name: m["curve"]["per_seed"][:, -1] / m["oracle_return"] for name, m in methods.items()
     }
-    profiles = statistics.performance_profiles(scores, PROFILE_TAUS)
+    aggregates, profiles = statistics.aggregates_and_profiles(scores, PROFILE_TAUS)
     pairs = [(learner, other) for other in methods if other != learner] if learner else []
     return {
-        "aggregates": statistics.aggregate_metrics(scores),
+        "aggregates": aggregates,
         "profiles": {
             "taus": PROFILE_TAUS,
             **{
