@@ -151,13 +151,14 @@ def map_runs(
 
     if workers is not None and workers < 1:
         raise ValueError(f"workers must be >= 1, got {workers}")
+    side_by_side = min(workers or os.cpu_count() or 1, len(items))
     if cluster_address(address) is not None:
         _map_ray(fn, items, workers, address, done)
-    elif min(workers or os.cpu_count() or 1, len(items)) <= 1:
+    elif side_by_side > 1:
+        _map_processes(fn, items, side_by_side, done)
+    else:
         for item in items:
             done(_run_here(fn, item))
-    else:
-        _map_processes(fn, items, min(workers or os.cpu_count() or 1, len(items)), done)
     return outcomes
 
 
