@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import time
 
 import numpy as np
 import pytest
@@ -74,3 +75,15 @@ def test_numpy_statistics_equal_rliables(runs):
     assert statistics.trimmed_mean(columns, axis=0) == pytest.approx(
         [metrics.aggregate_iqm(columns[:, j]) for j in range(4)]
     )
+
+
+def test_an_interrupted_map_stops_the_runs_of_its_worker_processes():
+    def interrupt(outcome):
+        raise KeyboardInterrupt
+
+    start = time.perf_counter()
+    with pytest.raises(KeyboardInterrupt):
+        # The worker process has the first run, of two minutes; this process has the second
+        # and is interrupted as it ends.
+        map_runs(time.sleep, [120, 10], workers=2, on_outcome=interrupt)
+    assert time.perf_counter() - start < 60

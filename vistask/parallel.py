@@ -191,10 +191,7 @@ def _map_processes(fn, items: list, workers: int, done: Callable[[Outcome], None
         except Exception:
             return Outcome(item, error=traceback.format_exc())
 
-    def feed() -> None:  # also in the pool's thread, as a run ends
-        found, item = take()
-        if not found:
-            return
+    def submit(item: Any) -> None:
         try:
             future = pool.submit(fn, item)
         except Exception:  # the pool is broken or shut down
@@ -202,9 +199,15 @@ def _map_processes(fn, items: list, workers: int, done: Callable[[Outcome], None
             return
         future.add_done_callback(lambda f: (ended.put(outcome(item, f)), feed()))
 
-    # The first submission waits for the process server to import the modules: this process
-    # runs runs meanwhile.
-    starter = threading.Thread(target=lambda: [feed() for _ in range(workers - 1)], daemon=True)
+    def feed() -> None:  # in the pool's thread, as a run ends
+        found, item = take()
+        if found:
+            submit(item)
+
+    # The processes' first runs are the first in the list. Submitting them waits for the
+    # process server to import the modules: this process runs runs meanwhile.
+    first = [todo.popleft() for _ in range(workers - 1)]
+    starter = threading.Thread(target=lambda: [submit(item) for item in first], daemon=True)
     try:
         with worker_threads():
             starter.start()
@@ -217,9 +220,15 @@ def _map_processes(fn, items: list, workers: int, done: Callable[[Outcome], None
                     done(ended.get())
                     remaining -= 1
             starter.join()
-    finally:
+    except BaseException:  # Ctrl-C or SIGTERM: stop the processes' runs too
         with lock:
             todo.clear()
+        if starter.is_alive():  # still starting the processes
+            starter.join()
+        for process in (pool._processes or {}).values():  # no public way before Python 3.14
+            process.terminate()
+        raise
+    finally:
         pool.shutdown(cancel_futures=True)
 
 
