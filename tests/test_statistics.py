@@ -77,6 +77,15 @@ def test_numpy_statistics_equal_rliables(runs):
     )
 
 
+def test_a_run_that_exits_or_kills_its_worker_process_fails_alone():
+    # The worker process takes the first run of the list; exec runs each item's code.
+    for first in ("import sys; sys.exit(3)", "import os; os._exit(3)"):
+        outcomes = map_runs(exec, [first, "x = 1", "y = 2", "z = 3"], workers=2)
+        by_item = {o.item: o for o in outcomes}
+        assert len(outcomes) == 4 and not by_item[first].ok
+        assert all(by_item[code].ok for code in ("x = 1", "y = 2", "z = 3"))
+
+
 def test_an_interrupted_map_stops_the_runs_of_its_worker_processes():
     def interrupt(outcome):
         raise KeyboardInterrupt

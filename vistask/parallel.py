@@ -178,55 +178,75 @@ def _map_processes(fn, items: list, workers: int, done: Callable[[Outcome], None
     context = multiprocessing.get_context("forkserver")
     context.set_forkserver_preload([*PRELOAD, fn.__module__])
     pool = ProcessPoolExecutor(workers - 1, mp_context=context, initializer=one_thread)
-    todo, lock = deque(items), threading.Lock()
-    ended: queue.SimpleQueue[Outcome] = queue.SimpleQueue()  # the processes' runs, as they end
+    todo, lock, stopping = deque(items), threading.Lock(), threading.Event()
+    # The processes' outcomes as their runs end; None: a run handed back to this process.
+    ended: queue.SimpleQueue[Outcome | None] = queue.SimpleQueue()
 
     def take() -> tuple[bool, Any]:
         with lock:
             return (True, todo.popleft()) if todo else (False, None)
 
-    def outcome(item: Any, future: Future) -> Outcome:
-        try:
-            return Outcome(item, result=future.result())
-        except Exception:
-            return Outcome(item, error=traceback.format_exc())
-
     def submit(item: Any) -> None:
         try:
-            future = pool.submit(fn, item)
-        except Exception:  # the pool is broken or shut down
-            ended.put(Outcome(item, error=traceback.format_exc()))
+            # The process runs _run_here, so that its outcome, traceback included, comes back
+            # as a plain Outcome whatever the run raised.
+            future = pool.submit(_run_here, fn, item)
+        except Exception:  # the pool is broken or shut down: this process runs the item
+            with lock:
+                todo.appendleft(item)
+            ended.put(None)
             return
-        future.add_done_callback(lambda f: (ended.put(outcome(item, f)), feed()))
+        future.add_done_callback(lambda f: finished(item, f))
 
-    def feed() -> None:  # in the pool's thread, as a run ends
+    def finished(item: Any, future: Future) -> None:  # in the pool's thread
+        try:
+            ended.put(future.result())
+        except BaseException:  # the run exited its process or killed it, or was cancelled
+            ended.put(Outcome(item, error=traceback.format_exc()))
         found, item = take()
         if found:
             submit(item)
 
+    def drained() -> list[Outcome]:
+        outcomes = []
+        while not ended.empty():
+            outcome = ended.get()
+            if outcome is not None:
+                outcomes.append(outcome)
+        return outcomes
+
+    def stop() -> None:
+        stopping.set()
+        with lock:
+            todo.clear()
+        for process in list((pool._processes or {}).values()):  # no public way before 3.14
+            process.terminate()
+
     # The processes' first runs are the first in the list. Submitting them waits for the
     # process server to import the modules: this process runs runs meanwhile.
     first = [todo.popleft() for _ in range(workers - 1)]
-    starter = threading.Thread(target=lambda: [submit(item) for item in first], daemon=True)
+    starter = threading.Thread(
+        target=lambda: [submit(item) for item in first if not stopping.is_set()], daemon=True
+    )
     try:
         with worker_threads():
             starter.start()
             remaining = len(items)
             while remaining:
                 found, item = take()
-                done(_run_here(fn, item) if found else ended.get())
-                remaining -= 1
-                while remaining and not ended.empty():
-                    done(ended.get())
-                    remaining -= 1
+                for outcome in [_run_here(fn, item) if found else ended.get(), *drained()]:
+                    if outcome is not None:
+                        done(outcome)
+                        remaining -= 1
             starter.join()
-    except BaseException:  # Ctrl-C or SIGTERM: stop the processes' runs too
-        with lock:
-            todo.clear()
-        if starter.is_alive():  # still starting the processes
-            starter.join()
-        for process in (pool._processes or {}).values():  # no public way before Python 3.14
-            process.terminate()
+    except BaseException as error:  # Ctrl-C or SIGTERM: stop the processes' runs too
+        stop()
+        starter.join()
+        stop()  # the processes the starter made meanwhile
+        if isinstance(error, KeyboardInterrupt):  # keep the runs that ended
+            for outcome in drained():
+                if outcome.ok:
+                    done(outcome)
         raise
     finally:
         pool.shutdown(cancel_futures=True)
