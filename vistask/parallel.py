@@ -169,6 +169,13 @@ def _run_here(fn: Callable[[Any], Any], item: Any) -> Outcome:
         return Outcome(item, error=traceback.format_exc())
 
 
+def _run_in_worker(fn: Callable[[Any], Any], item: Any) -> tuple[Any, str | None]:
+    # The outcome without the item, which the caller has: a result, or the traceback text
+    # whatever the run raised (an exception need not survive pickling).
+    outcome = _run_here(fn, item)
+    return outcome.result, outcome.error
+
+
 def _map_processes(fn, items: list, workers: int, done: Callable[[Outcome], None]) -> None:
     # This process runs runs too, beside workers - 1 processes: it has imported everything,
     # where a new process takes seconds to import torch and the rest. Each takes the next run
@@ -188,9 +195,7 @@ def _map_processes(fn, items: list, workers: int, done: Callable[[Outcome], None
 
     def submit(item: Any) -> None:
         try:
-            # The process runs _run_here, so that its outcome, traceback included, comes back
-            # as a plain Outcome whatever the run raised.
-            future = pool.submit(_run_here, fn, item)
+            future = pool.submit(_run_in_worker, fn, item)
         except Exception:  # the pool is broken or shut down: this process runs the item
             with lock:
                 todo.appendleft(item)
@@ -200,7 +205,7 @@ def _map_processes(fn, items: list, workers: int, done: Callable[[Outcome], None
 
     def finished(item: Any, future: Future) -> None:  # in the pool's thread
         try:
-            ended.put(future.result())
+            ended.put(Outcome(item, *future.result()))
         except BaseException:  # the run exited its process or killed it, or was cancelled
             ended.put(Outcome(item, error=traceback.format_exc()))
         found, item = take()
