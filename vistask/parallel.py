@@ -230,9 +230,14 @@ def _map_processes(fn, items: list, workers: int, done: Callable[[Outcome], None
     # The processes' first runs are the first in the list. Submitting them waits for the
     # process server to import the modules: this process runs runs meanwhile.
     first = [todo.popleft() for _ in range(workers - 1)]
-    starter = threading.Thread(
-        target=lambda: [submit(item) for item in first if not stopping.is_set()], daemon=True
-    )
+
+    def start() -> None:
+        for item in first:
+            if stopping.is_set():
+                return
+            submit(item)
+
+    starter = threading.Thread(target=start, daemon=True)
     try:
         with worker_threads():
             starter.start()
