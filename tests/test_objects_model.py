@@ -3,8 +3,9 @@
 import pytest
 import torch
 
-from vistask.objects import ObjectModel
+from vistask.objects import ObjectModel, appearance_descriptors
 from vistask.objects.synthetic import synthetic_object
+from vistask.saving import save_state
 from vistask.se3 import SE3KDE, random_poses
 from vistask.vision import Patches
 
@@ -104,3 +105,25 @@ def test_save_load_round_trip_keeps_the_grasp_density(model: ObjectModel, tmp_pa
     x = random_poses(4, 0.05)
     torch.testing.assert_close(back.grasp_density(x), grasps(x))
     torch.testing.assert_close(back.classify(model.patches.colors), model.labels)
+
+
+@pytest.mark.parametrize("gain", [(0.5, 0.5, 0.5), (1.3, 1.3, 1.3), (0.6, 0.5, 0.7)])
+def test_a_dimmer_brighter_or_tinted_lamp_keeps_the_nearest_appearance_class(
+    model: ObjectModel, gain: tuple[float, float, float]
+) -> None:
+    # Other light scales each channel of both sides of a patch alike: the descriptors move
+    # far less than the raw colours, and each patch stays nearest its own class.
+    colors = model.patches.colors
+    relit = (colors * torch.tensor(gain)).clamp(0, 1)
+    before, after = appearance_descriptors(colors), appearance_descriptors(relit)
+    assert torch.equal(torch.cdist(after, model.centres).argmin(dim=1), model.labels)
+    moved = (after - before).norm(dim=1).max()
+    assert moved < 0.5 * (relit - colors).reshape(-1, 6).norm(dim=1).max()
+
+
+def test_a_model_of_other_appearance_descriptors_is_refused(model: ObjectModel, tmp_path) -> None:
+    state = model.state_dict()
+    state["params"] = {k: v for k, v in state["params"].items() if k != "appearance"}
+    save_state(tmp_path / "old.pt", "ObjectModel", state)
+    with pytest.raises(ValueError, match="learn it again"):
+        ObjectModel.load(tmp_path / "old.pt")
