@@ -1,6 +1,7 @@
 """Hierarchical object models: a Markov tree of features over SE(3) (paper Sect. 3.3).
 
-- A *primitive feature* is an appearance class of patches (k-means on the two side colours).
+- A *primitive feature* is an appearance class of patches (k-means on descriptors of the
+  two side colours).
   Its instances in the object are the object-frame frames of the patches of that class.
 - A *meta-feature* pairs two features. Its frame sits at the centroid of the primitive
   instances below it, with the object's orientation; it has one instance in the object.
@@ -70,8 +71,8 @@ def appearance_descriptors(colors: Tensor) -> Tensor:
       channel;
     - (N, 3) the brighter side's colour over the pair's mean brightness: unchanged by one gain
       for all channels, and it keeps the colour that tells lookalikes apart.
-    Both parts span about [0, 1], so that k-means and the class radii weigh them alike. On the
-    pose benchmark's other lighting, NBP finds 55% of the poses against 30% with raw colours.
+    Both parts span about [0, 1], so that k-means and the class radii weigh them alike (docs/
+    results.md, "Pose estimation", measures them against raw colours).
 
     Example:
         >>> side = torch.tensor([[[0.4, 0.2, 0.2], [0.8, 0.6, 0.4]]])
@@ -96,7 +97,7 @@ class ObjectModel:
 
     Attributes:
         name: object name.
-        centres: (K, 6) appearance-class centres (side colours).
+        centres: (K, 6) appearance-class centres (``appearance_descriptors``).
         radii: (K,) accept radius of each class in descriptor space.
         features: the Markov tree; primitives first (feature k has appearance class k),
             the root last.
@@ -104,7 +105,8 @@ class ObjectModel:
         labels: (N,) appearance class of each patch.
         grasp_density: optional ``SE3KDE`` of gripper poses in the object frame (psi_og).
         params: the keyword arguments ``learn`` was given (n_classes, sigma_t, sigma_r,
-            meta_sigma_t, meta_sigma_r, class_radius, seed).
+            meta_sigma_t, meta_sigma_r, class_radius, seed) and the ``APPEARANCE``
+            descriptor's name.
     """
 
     name: str
