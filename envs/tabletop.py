@@ -236,6 +236,9 @@ class TabletopWorld:
             headlight *= rng.uniform(0.3, 1.5)
         m.light_diffuse[:], m.light_pos[:], m.light_dir[:] = diffuse, pos, direction
         m.vis.headlight.diffuse[:] = headlight
+        # The renderer reads the lamp's world position and direction from the data, which
+        # mj_forward updates: without it a scene showed the previous scene's lamp.
+        mujoco.mj_forward(m, self._d)
 
     # -- rendering ----------------------------------------------------------------------
 

@@ -40,6 +40,20 @@ def test_scene_is_reproducible_from_its_seed(scene) -> None:
     assert (other.poses[0] - scene.poses[0]).abs().max() > 1e-3
 
 
+def test_a_scene_shows_its_own_lamp_whatever_was_drawn_before(scene) -> None:
+    world = tabletop_world(["hammer", *DEFAULT_DISTRACTORS])
+
+    def relit(seed: int):
+        return world.generate(seed, "hammer", 3, ["front"], SIZE, relight=True).views["front"]
+
+    first = relit(5)
+    relit(6)  # another lamp
+    assert torch.equal(relit(5).rgb, first.rgb)
+    # And the default light comes back for the next scene that is not relit.
+    again = make_scene(11, target="hammer", n_distractors=3, cameras=("front",), image_size=SIZE)
+    assert torch.equal(again.views["front"].rgb, scene.views["front"].rgb)
+
+
 def test_scene_contents(scene) -> None:
     assert scene.target == "hammer" and len(scene.objects) == 4 == len(set(scene.objects))
     assert scene.poses.shape == (4, 7) and scene.bounds.shape == (4, 2, 3)
