@@ -71,8 +71,8 @@ def appearance_descriptors(colors: Tensor) -> Tensor:
       channel;
     - (N, 3) the brighter side's colour over the pair's mean brightness: unchanged by one gain
       for all channels, and it keeps the colour that tells lookalikes apart.
-    Both parts span about [0, 1], so that k-means and the class radii weigh them alike (docs/
-    results.md, "Pose estimation", measures them against raw colours).
+    Both parts span about [0, 1], so that k-means and the class radii weigh them alike
+    (``docs/results.md``, "Pose estimation", measures them against raw colours).
 
     Example:
         >>> side = torch.tensor([[[0.4, 0.2, 0.2], [0.8, 0.6, 0.4]]])
