@@ -73,7 +73,7 @@ from vistask.envs.scene import (
     xyzw_to_wxyz,
 )
 from vistask.grasp.learning import Workspace
-from vistask.objects import NBP, ObjectModel
+from vistask.objects import NBP, DepthCheck, ObjectModel
 from vistask.parallel import ray_session
 from vistask.vision import (
     Camera,
@@ -599,7 +599,8 @@ class EstimatedPose(gym.Wrapper):
     ``info["object_pose"]`` and only scores it: ``pose_error_m`` and ``pose_error_deg``
     (modulo the object's symmetry), and ``estimate_seconds`` (patches and NBP). NBP looks at
     every patch above the table (``SCENE_BOX``), not at the segmentation: it finds the
-    target among the distractors itself. If it finds nothing, ``estimate_failed`` is True
+    target among the distractors itself, and checks its hypotheses against the depth images
+    (``DepthCheck``). If it finds nothing, ``estimate_failed`` is True
     and the estimate is the table centre, upright.
 
     Example:
@@ -629,8 +630,11 @@ class EstimatedPose(gym.Wrapper):
         start = time.perf_counter()
         lo, hi = (torch.tensor(c) for c in SCENE_BOX)
         try:
-            scene = self.env.unwrapped.patches(obs, label=None).in_box(lo, hi)
-            pose = self.nbp.infer(self.model, scene, seed=seed or 0).pose.double()
+            env = self.env.unwrapped
+            scene = env.patches(obs, label=None).in_box(lo, hi)
+            views = observation_views(obs, env.cameras).values()
+            depth = DepthCheck(views, floor_z=TABLE_TOP_Z)
+            pose = self.nbp.infer(self.model, scene, seed=seed or 0, depth=depth).pose.double()
             failed = False
         except ValueError:  # nothing in view matches the model
             pose = torch.tensor([0.0, 0.0, TABLE_TOP_Z, 0.0, 0.0, 0.0, 1.0], dtype=torch.float64)

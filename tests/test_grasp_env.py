@@ -174,7 +174,7 @@ def test_estimated_poses_drive_the_trials() -> None:
         def __init__(self, pose: torch.Tensor) -> None:
             self.pose = pose
 
-        def infer(self, model, patches, device=None, seed=0):
+        def infer(self, model, patches, device=None, seed=0, depth=None):
             return SimpleNamespace(pose=self.pose)
 
     try:

@@ -29,7 +29,7 @@ import torch
 from vistask.envs.objects import DEFAULT_DISTRACTORS, object_name, object_spec
 from vistask.envs.scene import CAMERAS, LEARNING_CAMERAS, TABLE_TOP_Z, TEST_CAMERAS
 from vistask.experiments.statistics import success_interval
-from vistask.objects import NBP, ObjectModel, Open3DRegistration
+from vistask.objects import NBP, DepthCheck, ObjectModel, Open3DRegistration
 from vistask.objects.registration import view_cloud
 from vistask.parallel import Outcome, map_runs
 from vistask.runs import write_summary
@@ -354,7 +354,8 @@ class PoseBenchmark:
     def _estimate(self, method: str, models: tuple, scene, patches: Patches | None, seed: int):
         model, cloud = models
         if method == "nbp":
-            return self.nbp.infer(model, patches, device=self.device, seed=seed).pose.cpu()
+            depth = DepthCheck(scene.views.values(), floor_z=TABLE_TOP_Z)
+            return self.nbp.infer(model, patches, self.device, seed, depth).pose.cpu()
         if method == "open3d":
             return self.registration.estimate_pose(model, patches, seed=seed).pose
         points, normals, colours = scene_cloud(list(scene.views.values()), self.voxel)

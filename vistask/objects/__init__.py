@@ -2,10 +2,12 @@
 
 - ``model``: ``ObjectModel`` (primitive features = appearance classes of patches,
   meta-features, SE(3) compatibility potentials; save/load; optional grasp density).
+- ``depth``: pose hypotheses refined and checked against depth images (``DepthCheck``).
 - ``nbp``: nonparametric belief propagation over the model's tree (``NBP``).
 - ``registration``: Open3D FPFH + RANSAC + ICP baseline (``Open3DRegistration``).
 """
 
+from vistask.objects.depth import DepthCheck
 from vistask.objects.model import (
     MIN_PATCHES_PER_CLASS,
     Feature,
@@ -27,6 +29,7 @@ from vistask.objects.registration import Open3DRegistration, RegistrationResult
 __all__ = [
     "MIN_PATCHES_PER_CLASS",
     "NBP",
+    "DepthCheck",
     "Evidence",
     "Feature",
     "NBPResult",

@@ -12,7 +12,9 @@ Every density is an ``SE3KDE`` over world poses of a feature's frame.
   own parent the same way.
 - The root's belief, mapped to the object frame, gives pose hypotheses (its modes, by mean
   shift); each is scored by the top-down prediction of every primitive instance against the
-  evidence (how much of the model the scene explains), best first.
+  evidence (how much of the model the scene explains), best first. Given the depth images
+  (``DepthCheck``), each hypothesis is also pulled onto the observed surfaces and its score
+  weighted by how much of the model the depth explains and how little it rules out.
 - Top-down: the root's belief is pushed down through the potentials (X_c = X_p ∘ r) and
   reweighted by each child's bottom-up belief (meta) or evidence (primitive), which gives a
   belief for every feature.
@@ -28,6 +30,7 @@ import torch
 from torch import Tensor
 
 from vistask.checks import check_at_least, check_positive
+from vistask.objects.depth import DepthCheck
 from vistask.objects.model import ObjectModel, appearance_descriptors
 from vistask.se3 import SE3KDE, compose, inverse, kernels
 from vistask.vision import Patches
@@ -228,7 +231,7 @@ class NBP:
         evidence_sigma_r: float = 0.35,
         floor: float = 0.05,
         cutoff: float | None = None,
-        n_modes: int = 4,
+        n_modes: int = 8,
         mode_starts: int = 48,
         refine_sigma_t: float = 0.006,
         refine_iters: int = 3,
@@ -268,6 +271,7 @@ class NBP:
         patches: Patches,
         device: torch.device | str | None = None,
         seed: int = 0,
+        depth: DepthCheck | None = None,
     ) -> NBPResult:
         """Detect the object and estimate its pose in a scene.
 
@@ -276,6 +280,8 @@ class NBP:
             patches: (M) world-frame scene patches (with normals).
             device: where to compute (default CPU).
             seed: seed of the sampling.
+            depth: the scene's depth images; when given, every hypothesis is refined onto
+                the observed surfaces and its score multiplied by ``depth.weights``.
 
         Returns:
             the pose hypotheses and the densities computed on the way.
@@ -324,10 +330,13 @@ class NBP:
         )
         match = SceneMatch.build(model, evidence, self.color_sigma)
         if self.refine_sigma_t > 0:
-            candidates = torch.stack(
-                [match.refine(p, self.refine_sigma_t, self.refine_iters) for p in candidates]
-            )
+            candidates = match.refine(candidates, self.refine_sigma_t, self.refine_iters)
+        if depth is not None:
+            points = model.patches.positions.cpu()
+            candidates = depth.refine(candidates.cpu(), points).to(device)
         scores = match.support(candidates, self.evidence_sigma_t, self.evidence_sigma_r)
+        if depth is not None:
+            scores = scores * depth.weights(candidates.cpu(), points).to(device)
         order = torch.argsort(scores, descending=True)
         result = NBPResult(
             candidates[order], scores[order], object_belief, messages, beliefs, evidence
@@ -388,29 +397,33 @@ class SceneMatch:
         kern = torch.exp(-0.5 * d2 / sigma_t**2 + kappa * (dot - 1.0)) * self.affinity
         return kern.amax(dim=2).sum(dim=1)
 
-    def refine(self, pose: Tensor, sigma_t: float, iters: int) -> Tensor:
-        """Sharpen one hypothesis (7,) -> (7,): each predicted instance is pulled to the
+    def refine(self, poses: Tensor, sigma_t: float, iters: int) -> Tensor:
+        """Sharpen hypotheses (H, 7) -> (H, 7): each predicted instance is pulled to the
         kernel-weighted mean of the matching observed positions (position kernel at scale
         ``sigma_t``, normal agreement, affinity), then the weighted rigid fit of the model
-        to the pulled points (Kabsch) gives the new pose."""
+        to the pulled points (Kabsch) gives the new pose. A hypothesis with fewer than
+        three matching instances stays where it is."""
         obs_t, obs_n = self.observed[:, :3], _normals(self.observed)
         for _ in range(iters):
-            pred = self.predict(pose[None])[0]
-            kern = torch.exp(-0.5 * torch.cdist(pred[:, :3], obs_t).square() / sigma_t**2)
+            pred = self.predict(poses)  # (H, N, 7)
             # Axial normal agreement keeps patches of other faces out of the match.
             cos = (_normals(pred) @ obs_n.T).abs()
-            kern = kern * torch.exp((cos - 1.0) / (1.0 - math.cos(NORMAL_TOLERANCE)))
-            kern = kern * self.affinity
-            total = kern.sum(dim=1)
+            log_kern = -0.5 * torch.cdist(pred[..., :3], obs_t[None]).square() / sigma_t**2
+            log_kern = log_kern + (cos - 1.0) / (1.0 - math.cos(NORMAL_TOLERANCE))
+            kern = torch.exp(log_kern) * self.affinity
+            total = kern.sum(dim=2)  # (H, N)
             keep = total > 1e-6
-            if int(keep.sum()) < 3:
+            enough = keep.sum(dim=1) >= 3
+            if not enough.any():
                 break
-            target = (kern[keep] @ obs_t) / total[keep, None]
-            R, t = roma.rigid_points_registration(
-                self.instances[keep, :3], target, weights=total[keep].clamp(max=1.0)
-            )
-            pose = torch.cat([t, roma.rotmat_to_unitquat(R)])
-        return pose
+            target = (kern @ obs_t) / total.clamp_min(1e-6)[..., None]
+            weights = torch.where(keep, total.clamp(max=1.0), 0.0)
+            source = self.instances[:, :3].expand(len(poses), -1, -1)
+            target = torch.where(keep[..., None], target, source)
+            R, t = roma.rigid_points_registration(source, target, weights=weights)
+            fitted = torch.cat([t, roma.rotmat_to_unitquat(R)], dim=-1)
+            poses = torch.where(enough[:, None], fitted, poses)
+        return poses
 
 
 def top_down(

@@ -1,0 +1,111 @@
+"""Pose hypotheses against depth images: a box on a table, ray-cast exactly."""
+
+import math
+
+import pytest
+import roma
+import torch
+
+from vistask.objects import DepthCheck
+from vistask.vision import Camera, RGBDView, intrinsics_from_fovy, look_at, pose_error
+from vistask.vision.camera import pixel_grid
+
+HALF = torch.tensor([0.05, 0.03, 0.04])  # the box: [-hx, hx] x [-hy, hy] x [0, 2 hz]
+TRUTH = torch.tensor([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0])
+
+
+def _view(eye: tuple[float, float, float], size: int = 96) -> RGBDView:
+    """Exact z-depth of the box on the plane z = 0, by slab ray casting."""
+    camera = Camera(
+        intrinsics_from_fovy(50.0, size, size),
+        look_at(torch.tensor(eye), torch.tensor([0.0, 0.0, 0.03])),
+        size,
+        size,
+    )
+    eye_t = camera.position.float()
+    # Points at z-depth 1 minus the eye: along each ray, the parameter is the z-depth.
+    rays = camera.backproject(pixel_grid(size, size), torch.ones(size, size)).float() - eye_t
+    lo = torch.tensor([-HALF[0], -HALF[1], 0.0])
+    hi = torch.tensor([HALF[0], HALF[1], 2 * HALF[2]])
+    t1, t2 = (lo - eye_t) / rays, (hi - eye_t) / rays
+    near = torch.minimum(t1, t2).amax(-1)
+    far = torch.maximum(t1, t2).amin(-1)
+    plane = -eye_t[2] / rays[..., 2]
+    depth = torch.where((far >= near) & (near > 0), near, plane)
+    return RGBDView(torch.zeros(size, size, 3, dtype=torch.uint8), depth, camera)
+
+
+def _box_points(step: float = 0.008) -> torch.Tensor:
+    """(N, 3) points on the box's top and four sides, in its frame."""
+
+    def grid(a: float, b: float) -> tuple[torch.Tensor, torch.Tensor]:
+        u = torch.arange(-a, a + 1e-9, step)
+        v = torch.arange(-b, b + 1e-9, step)
+        return torch.meshgrid(u, v, indexing="ij")
+
+    hx, hy, hz = HALF.tolist()
+    faces = []
+    x, y = grid(hx, hy)
+    faces.append(torch.stack([x, y, torch.full_like(x, 2 * hz)], -1))
+    for sign in (-1.0, 1.0):
+        x, z = grid(hx, hz)
+        faces.append(torch.stack([x, torch.full_like(x, sign * hy), z + hz], -1))
+        y, z = grid(hy, hz)
+        faces.append(torch.stack([torch.full_like(y, sign * hx), y, z + hz], -1))
+    return torch.cat([f.reshape(-1, 3) for f in faces])
+
+
+@pytest.fixture(scope="module")
+def check() -> DepthCheck:
+    return DepthCheck([_view((0.35, -0.3, 0.35)), _view((-0.3, -0.35, 0.3))], floor_z=0.0)
+
+
+def _moved(dx: float, dy: float, dz: float, yaw_deg: float = 0.0) -> torch.Tensor:
+    q = roma.rotvec_to_unitquat(torch.tensor([0.0, 0.0, math.radians(yaw_deg)]))
+    return torch.cat([torch.tensor([dx, dy, dz]), q])
+
+
+def test_the_true_pose_outweighs_floating_sunk_and_shifted_ones(check: DepthCheck) -> None:
+    points = _box_points()
+    poses = torch.stack(
+        [TRUTH, _moved(0, 0, 0.05), _moved(0, 0, -0.03), _moved(0.04, 0, 0), _moved(0, 0, 0, 30)]
+    )
+    weights = check.weights(poses, points)
+    assert weights[0] > 0.4  # the visible half of the box lies on the observed surfaces
+    assert weights[1] == 0  # in free space
+    assert (weights[2:4] < 0.5 * weights[0]).all()  # sunk into the table, 4 cm aside
+    assert weights[4] < weights[0]  # turned 30 degrees
+    # A box 5 cm above the table hangs in space both cameras see through.
+    floating = check.match(points + torch.tensor([0.0, 0.0, 0.05]))
+    free = sum(f.sum() for *_, f in floating) / sum(i.sum() for _, _, i, _ in floating)
+    assert free > 0.3
+
+
+def test_refinement_pulls_nearby_poses_onto_the_surfaces(check: DepthCheck) -> None:
+    points = _box_points()
+    starts = torch.stack([_moved(0.01, -0.008, 0.005, 6.0), _moved(-0.006, 0.01, -0.004, -5.0)])
+    refined = check.refine(starts, points)
+    for pose in refined:
+        err_t, err_r = pose_error(pose, TRUTH)
+        assert err_t < 0.002 and err_r < 1.5
+    # Poses are refined independently of the batch they come in.
+    alone = check.refine(starts[1:], points)
+    assert torch.allclose(alone[0], refined[1], atol=1e-5)
+
+
+def test_views_without_depth_leave_poses_unrefined_and_weigh_nothing() -> None:
+    view = _view((0.35, -0.3, 0.35))
+    blind = DepthCheck([RGBDView(view.rgb, torch.full_like(view.depth, math.nan), view.camera)])
+    points, poses = _box_points(), torch.stack([TRUTH, _moved(0.01, 0, 0)])
+    assert torch.equal(blind.refine(poses, points), poses)
+    assert torch.equal(blind.weights(poses, points), torch.zeros(2))
+
+
+def test_bad_arguments_are_named_in_the_error() -> None:
+    view = _view((0.35, -0.3, 0.35))
+    with pytest.raises(ValueError, match="at least one view"):
+        DepthCheck([])
+    with pytest.raises(ValueError, match="tolerance"):
+        DepthCheck([view], tolerance=0.0)
+    with pytest.raises(ValueError, match="window"):
+        DepthCheck([view], window=-1)

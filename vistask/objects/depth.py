@@ -1,0 +1,159 @@
+"""Pose hypotheses checked against depth images: what the scene's surfaces allow.
+
+NBP's hypotheses explain observed patches; the depth images also say where nothing is. A
+model point predicted in front of the observed surface lies in space the camera sees through
+(free space), and a point below the supporting table is inside it: both rule the pose out.
+Points behind the observed surface are hidden (by the object itself or by others) and count
+neither way.
+
+``DepthCheck(views).refine(poses, points)`` pulls hypotheses onto the observed surfaces
+(projective ICP: each model point is matched to the nearest back-projected pixel in a small
+window around its projection, then a rigid fit); ``weights`` scores them by the share of
+their model points that the depth explains, less what it rules out.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import roma
+import torch
+import torch.nn.functional as F
+from torch import Tensor
+
+from vistask.checks import check_at_least, check_positive
+from vistask.vision import RGBDView
+from vistask.vision.camera import pixel_grid
+
+REFINE_SCALES_M = (0.02, 0.01, 0.006, 0.004)
+"""Match distances of the refinement, coarse to fine (metres)."""
+MIN_MATCHES = 6
+"""A pose stays where fewer model points than this find an observed surface."""
+REFINE_POINTS = 400
+"""The refinement fits at most this many model points (evenly spaced in the model's order)."""
+
+
+def transform_points(poses: Tensor, points: Tensor) -> Tensor:
+    """(..., 7) poses, (N, 3) points in their frame -> (..., N, 3) world points."""
+    R = roma.unitquat_to_rotmat(poses[..., 3:])
+    return points @ R.transpose(-1, -2) + poses[..., None, :3]
+
+
+class DepthCheck:
+    """Depth images against which object poses are refined and checked.
+
+    Example:
+        >>> check = DepthCheck(scene.views.values(), floor_z=TABLE_TOP_Z)
+        >>> poses = check.refine(poses, model.patches.positions)  # (H, 7)
+        >>> check.weights(poses, model.patches.positions)  # (H,) in [0, 1]
+
+    Args:
+        views: V RGB-D views of the scene (pixels without valid depth are ignored).
+        floor_z: world height of the supporting plane; model points more than
+            ``tolerance`` below it rule a pose out. None: no floor.
+        tolerance: metres; a model point within this of an observed surface is explained,
+            one this far in front of every surface around its pixel is in free space.
+        window: a model point is matched within (2 window + 1)^2 pixels around its
+            projection, so that points on an object's outline, a pixel off, still find it.
+
+    Raises:
+        ValueError: no view, tolerance not positive, or window negative.
+    """
+
+    def __init__(
+        self,
+        views: Sequence[RGBDView],
+        floor_z: float | None = None,
+        tolerance: float = 0.01,
+        window: int = 2,
+    ) -> None:
+        views = list(views)
+        if not views:
+            raise ValueError("DepthCheck needs at least one view")
+        check_positive(tolerance=tolerance)
+        check_at_least(0, window=window)
+        self.floor_z = floor_z
+        self.tolerance = tolerance
+        side = torch.arange(-window, window + 1)
+        self._offsets = torch.cartesian_prod(side, side)  # (K, 2) as (dv, du)
+        self._maps = [self._surface_maps(view, window) for view in views]
+
+    @staticmethod
+    def _surface_maps(view: RGBDView, window: int) -> tuple:
+        """The view's camera, its (H, W, 3) back-projected world points (NaN where depth is
+        invalid), and its depth's minimum over the window (inf where none is valid)."""
+        depth = view.depth.float()
+        valid = torch.isfinite(depth) & (depth > 0)
+        points = torch.full((*depth.shape, 3), float("nan"))
+        pixels = pixel_grid(view.camera.height, view.camera.width)[valid]
+        points[valid] = view.camera.backproject(pixels, depth[valid]).float()
+        far = torch.where(valid, depth, torch.full_like(depth, float("inf")))
+        nearest = -F.max_pool2d(-far[None, None], 2 * window + 1, 1, window)[0, 0]
+        return view.camera, points, nearest
+
+    def match(self, points: Tensor) -> list[tuple[Tensor, Tensor, Tensor, Tensor]]:
+        """Per view, for (..., 3) world points: the nearest observed point in each one's
+        window (..., 3), its distance (...) (inf when none or outside the image), whether
+        the point projects into the image (...), and whether it lies in free space (...)."""
+        out = []
+        for camera, surface, nearest in self._maps:
+            H, W = nearest.shape
+            uv, z = camera.project(points)
+            u, v = uv[..., 0].round().long(), uv[..., 1].round().long()
+            inside = (u >= 0) & (u < W) & (v >= 0) & (v < H) & (z > 0)
+            uu = (u[..., None] + self._offsets[:, 1]).clamp(0, W - 1)
+            vv = (v[..., None] + self._offsets[:, 0]).clamp(0, H - 1)
+            around = surface[vv, uu]  # (..., K, 3)
+            dist = torch.nan_to_num((around - points[..., None, :]).norm(dim=-1), nan=torch.inf)
+            dist, k = dist.min(dim=-1)
+            closest = around.gather(-2, k[..., None, None].expand(*k.shape, 1, 3))[..., 0, :]
+            front = nearest[v.clamp(0, H - 1), u.clamp(0, W - 1)]
+            free = inside & torch.isfinite(front) & (z < front - self.tolerance)
+            out.append((closest, torch.where(inside, dist, torch.inf), inside, free))
+        return out
+
+    def refine(self, poses: Tensor, points: Tensor, iters: int = 4) -> Tensor:
+        """Pull poses onto the observed surfaces: at each scale of ``REFINE_SCALES_M``,
+        ``iters`` times, the model points within that distance of their nearest observed
+        point (in any view) are fitted rigidly onto them (weighted Kabsch).
+
+        Args:
+            poses: (H, 7) object poses (world).
+            points: (N, 3) model points in the object frame (at most ``REFINE_POINTS`` of
+                them are used).
+
+        Returns:
+            (H, 7) the refined poses; a pose stays where fewer than ``MIN_MATCHES`` points
+            match.
+        """
+        poses, points = poses.float(), points.float()
+        if len(points) > REFINE_POINTS:
+            points = points[torch.linspace(0, len(points) - 1, REFINE_POINTS).long()]
+        source = points.expand(len(poses), len(self._maps), *points.shape).flatten(1, 2)
+        for scale in REFINE_SCALES_M:
+            for _ in range(iters):
+                matches = self.match(transform_points(poses, points))
+                target = torch.cat([closest for closest, *_ in matches], dim=1)  # (H, VN, 3)
+                near = torch.cat([dist < scale for _, dist, *_ in matches], dim=1)
+                enough = near.sum(dim=1) >= MIN_MATCHES
+                if not enough.any():
+                    return poses
+                target = torch.where(near[..., None], target, source)  # unmatched: no pull
+                R, t = roma.rigid_points_registration(source, target, weights=near.float())
+                fitted = torch.cat([t, roma.rotmat_to_unitquat(R)], dim=-1)
+                poses = torch.where(enough[:, None], fitted, poses)
+        return poses
+
+    def weights(self, poses: Tensor, points: Tensor) -> Tensor:
+        """(H, 7) poses, (N, 3) object-frame model points -> (H,) weights in [0, 1]: the
+        share of the model points projecting into the views (one count per view) within
+        ``tolerance`` of an observed surface, times max(0, 1 - 2 v), v the share in free
+        space plus the share below the floor."""
+        world = transform_points(poses.float(), points.float())
+        matches = self.match(world)
+        seen = sum(inside.sum(dim=-1) for _, _, inside, _ in matches).clamp_min(1)
+        explained = sum((dist < self.tolerance).sum(dim=-1) for _, dist, _, _ in matches) / seen
+        violated = sum(free.sum(dim=-1) for *_, free in matches) / seen
+        if self.floor_z is not None:
+            violated = violated + (world[..., 2] < self.floor_z - self.tolerance).float().mean(-1)
+        return explained * (1.0 - 2.0 * violated).clamp_min(0.0)
