@@ -6,8 +6,9 @@ two or one test camera, depth noise with dropout at depth edges, other lighting,
 lying on a side, and clutter of lookalike distractors hiding at least half of the target.
 
 NBP and Open3D on patches see the same scene patches (every test camera merged, the table
-plane removed); Open3D on dense clouds sees every valid depth pixel above the table, against
-the model's dense cloud. Seconds per scene count the method and what it extracts from the
+plane removed), and NBP checks its hypotheses against the depth images (``DepthCheck``);
+Open3D on dense clouds sees every valid depth pixel above the table, against the model's
+dense cloud. Seconds per scene count the method and what it extracts from the
 images (patches or clouds), not the rendering. Success: translation error < 2 cm and rotation
 error < 15 degrees, modulo the object's symmetry. robosuite is imported only when scenes are
 made.

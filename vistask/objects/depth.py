@@ -31,6 +31,15 @@ MIN_MATCHES = 6
 """A pose stays where fewer model points than this find an observed surface."""
 REFINE_POINTS = 400
 """The refinement fits at most this many model points (evenly spaced in the model's order)."""
+SCREEN_POINTS = 200
+"""Model points that screen many poses at once (``NBP``'s draws from the object belief)."""
+
+
+def evenly_spaced(points: Tensor, k: int) -> Tensor:
+    """At most ``k`` of (N, 3) ``points``, evenly spaced in their order."""
+    if len(points) <= k:
+        return points
+    return points[torch.linspace(0, len(points) - 1, k).long()]
 
 
 def transform_points(poses: Tensor, points: Tensor) -> Tensor:
@@ -126,9 +135,7 @@ class DepthCheck:
             (H, 7) the refined poses; a pose stays where fewer than ``MIN_MATCHES`` points
             match.
         """
-        poses, points = poses.float(), points.float()
-        if len(points) > REFINE_POINTS:
-            points = points[torch.linspace(0, len(points) - 1, REFINE_POINTS).long()]
+        poses, points = poses.float(), evenly_spaced(points.float(), REFINE_POINTS)
         source = points.expand(len(poses), len(self._maps), *points.shape).flatten(1, 2)
         for scale in REFINE_SCALES_M:
             for _ in range(iters):

@@ -13,8 +13,9 @@ Every density is an ``SE3KDE`` over world poses of a feature's frame.
 - The root's belief, mapped to the object frame, gives pose hypotheses (its modes, by mean
   shift); each is scored by the top-down prediction of every primitive instance against the
   evidence (how much of the model the scene explains), best first. Given the depth images
-  (``DepthCheck``), each hypothesis is also pulled onto the observed surfaces and its score
-  weighted by how much of the model the depth explains and how little it rules out.
+  (``DepthCheck``), poses drawn from the belief and screened against the depth join the
+  modes; each hypothesis is pulled onto the observed surfaces and its score weighted by how
+  much of the model the depth explains and how little it rules out.
 - Top-down: the root's belief is pushed down through the potentials (X_c = X_p ∘ r) and
   reweighted by each child's bottom-up belief (meta) or evidence (primitive), which gives a
   belief for every feature.
@@ -30,7 +31,7 @@ import torch
 from torch import Tensor
 
 from vistask.checks import check_at_least, check_positive
-from vistask.objects.depth import DepthCheck
+from vistask.objects.depth import SCREEN_POINTS, DepthCheck, evenly_spaced
 from vistask.objects.model import ObjectModel, appearance_descriptors
 from vistask.se3 import SE3KDE, compose, inverse, kernels
 from vistask.vision import Patches
@@ -209,7 +210,10 @@ class NBP:
         cutoff: SE(3) kernel cut-off in multiples of sigma_t (grid evaluation), or None for
             dense evaluation, which is faster at these particle counts: votes crowd around
             the true pose, where the grid saves little.
-        n_modes: pose hypotheses kept (several object instances, or ambiguous poses).
+        n_modes: modes of the object belief kept as pose hypotheses (several object
+            instances, or ambiguous poses).
+        depth_draws: with depth images, poses drawn from the object belief and screened
+            against them; the ``n_modes`` best join the modes as hypotheses.
         mode_starts: mean-shift starts for the modes.
         refine_sigma_t: position scale (metres) of the final top-down refinement; 0 disables.
         refine_iters: iterations of that refinement.
@@ -231,7 +235,8 @@ class NBP:
         evidence_sigma_r: float = 0.35,
         floor: float = 0.05,
         cutoff: float | None = None,
-        n_modes: int = 8,
+        n_modes: int = 4,
+        depth_draws: int = 128,
         mode_starts: int = 48,
         refine_sigma_t: float = 0.006,
         refine_iters: int = 3,
@@ -246,7 +251,7 @@ class NBP:
             evidence_sigma_r=evidence_sigma_r,
             color_sigma=color_sigma,
         )
-        check_at_least(0, floor=floor, refine_sigma_t=refine_sigma_t)
+        check_at_least(0, floor=floor, refine_sigma_t=refine_sigma_t, depth_draws=depth_draws)
         if cutoff is not None and not cutoff > 0:
             raise ValueError(
                 f"cutoff must be positive (multiples of sigma_t) or None, got {cutoff}"
@@ -259,6 +264,7 @@ class NBP:
         self.floor = floor
         self.cutoff = cutoff
         self.n_modes = n_modes
+        self.depth_draws = depth_draws
         self.mode_starts = mode_starts
         self.refine_sigma_t = refine_sigma_t
         self.refine_iters = refine_iters
@@ -328,11 +334,19 @@ class NBP:
         candidates, _ = object_belief.modes(
             k=self.n_modes, n_starts=self.mode_starts, generator=gen
         )
+        points = model.patches.positions.cpu()
+        if depth is not None and self.depth_draws > 0:
+            # Modes follow the votes; a target mostly hidden among lookalikes gets few, so
+            # poses the depth supports are also taken from the belief's particles.
+            i = torch.multinomial(object_belief.weights, self.depth_draws, True, generator=gen)
+            draws = object_belief.points[i]
+            fit = depth.weights(draws.cpu(), evenly_spaced(points, SCREEN_POINTS))
+            best = torch.argsort(fit, descending=True)[: self.n_modes].to(device)
+            candidates = torch.cat([candidates, draws[best]])
         match = SceneMatch.build(model, evidence, self.color_sigma)
         if self.refine_sigma_t > 0:
             candidates = match.refine(candidates, self.refine_sigma_t, self.refine_iters)
         if depth is not None:
-            points = model.patches.positions.cpu()
             candidates = depth.refine(candidates.cpu(), points).to(device)
         scores = match.support(candidates, self.evidence_sigma_t, self.evidence_sigma_r)
         if depth is not None:
