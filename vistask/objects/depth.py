@@ -44,8 +44,7 @@ def evenly_spaced(points: Tensor, k: int) -> Tensor:
 
 def transform_points(poses: Tensor, points: Tensor) -> Tensor:
     """(..., 7) poses, (N, 3) points in their frame -> (..., N, 3) world points."""
-    R = roma.unitquat_to_rotmat(poses[..., 3:])
-    return points @ R.transpose(-1, -2) + poses[..., None, :3]
+    return roma.quat_action(poses[..., None, 3:], points, is_normalized=True) + poses[..., None, :3]
 
 
 class DepthCheck:
@@ -145,7 +144,7 @@ class DepthCheck:
                 enough = near.sum(dim=1) >= MIN_MATCHES
                 if not enough.any():
                     return poses
-                target = torch.where(near[..., None], target, source)  # unmatched: no pull
+                target = torch.where(near[..., None], target, source)  # unmatched: weight 0, no NaN
                 R, t = roma.rigid_points_registration(source, target, weights=near.float())
                 fitted = torch.cat([t, roma.rotmat_to_unitquat(R)], dim=-1)
                 poses = torch.where(enough[:, None], fitted, poses)
