@@ -22,6 +22,7 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from vistask.checks import check_at_least, check_positive
+from vistask.se3 import apply
 from vistask.vision import RGBDView
 from vistask.vision.camera import pixel_grid
 
@@ -40,11 +41,6 @@ def evenly_spaced(points: Tensor, k: int) -> Tensor:
     if len(points) <= k:
         return points
     return points[torch.linspace(0, len(points) - 1, k).long()]
-
-
-def transform_points(poses: Tensor, points: Tensor) -> Tensor:
-    """(..., 7) poses, (N, 3) points in their frame -> (..., N, 3) world points."""
-    return roma.quat_action(poses[..., None, 3:], points, is_normalized=True) + poses[..., None, :3]
 
 
 class DepthCheck:
@@ -138,7 +134,7 @@ class DepthCheck:
         source = points.expand(len(poses), len(self._maps), *points.shape).flatten(1, 2)
         for scale in REFINE_SCALES_M:
             for _ in range(iters):
-                matches = self.match(transform_points(poses, points))
+                matches = self.match(apply(poses[:, None], points))
                 target = torch.cat([closest for closest, *_ in matches], dim=1)  # (H, VN, 3)
                 near = torch.cat([dist < scale for _, dist, *_ in matches], dim=1)
                 enough = near.sum(dim=1) >= MIN_MATCHES
@@ -155,7 +151,7 @@ class DepthCheck:
         share of the model points projecting into the views (one count per view) within
         ``tolerance`` of an observed surface, times max(0, 1 - 2 v), v the share in free
         space plus the share below the floor."""
-        world = transform_points(poses.float(), points.float())
+        world = apply(poses.float()[:, None], points.float())
         matches = self.match(world)
         seen = sum(inside.sum(dim=-1) for _, _, inside, _ in matches).clamp_min(1)
         explained = sum((dist < self.tolerance).sum(dim=-1) for _, dist, _, _ in matches) / seen
