@@ -18,6 +18,7 @@ from vistask.se3 import (
     pose_xyzw_to_wxyz,
     random_poses,
     relative,
+    rigid_refit,
     rotation_distance,
     translation_distance,
 )
@@ -104,3 +105,23 @@ def test_check_poses_errors() -> None:
     # Small deviations within the tolerance are renormalised.
     almost = torch.tensor([[0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0005]])
     assert check_poses(almost)[0, 3:].norm().item() == pytest.approx(1.0)
+
+
+def test_rigid_refit_recovers_the_poses_of_matched_points_and_keeps_those_with_too_few() -> None:
+    truth, start = _poses(0, 3).float(), _poses(1, 3).float()
+    g = torch.Generator().manual_seed(2)
+    source = torch.randn(3, 10, 3, generator=g)
+    target = apply(truth[:, None], source)
+    weights = torch.ones(3, 10)
+    weights[1, 3:] = 0.0  # pose 1: three matches only, its other targets meaningless
+    target[1, 3:] = float("nan")
+    weights[2, 5:] = 0.0
+    target[2, 5:] = float("nan")
+    fitted, moved = rigid_refit(start, source, target, weights, min_points=4)
+    assert moved
+    for i in (0, 2):
+        assert translation_distance(fitted[i], truth[i]) < 1e-4
+        assert rotation_distance(fitted[i], truth[i]) < 1e-3
+    assert torch.equal(fitted[1], start[1])
+    same, moved = rigid_refit(start, source, target, weights, min_points=11)
+    assert not moved and torch.equal(same, start)

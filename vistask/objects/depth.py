@@ -16,13 +16,12 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-import roma
 import torch
 import torch.nn.functional as F
 from torch import Tensor
 
 from vistask.checks import check_at_least, check_positive
-from vistask.se3 import apply
+from vistask.se3 import apply, rigid_refit
 from vistask.vision import RGBDView
 from vistask.vision.camera import pixel_grid
 
@@ -137,13 +136,9 @@ class DepthCheck:
                 matches = self.match(apply(poses[:, None], points))
                 target = torch.cat([closest for closest, *_ in matches], dim=1)  # (H, VN, 3)
                 near = torch.cat([dist < scale for _, dist, *_ in matches], dim=1)
-                enough = near.sum(dim=1) >= MIN_MATCHES
-                if not enough.any():
+                poses, moved = rigid_refit(poses, source, target, near.float(), MIN_MATCHES)
+                if not moved:
                     return poses
-                target = torch.where(near[..., None], target, source)  # unmatched: weight 0, no NaN
-                R, t = roma.rigid_points_registration(source, target, weights=near.float())
-                fitted = torch.cat([t, roma.rotmat_to_unitquat(R)], dim=-1)
-                poses = torch.where(enough[:, None], fitted, poses)
         return poses
 
     def weights(self, poses: Tensor, points: Tensor) -> Tensor:

@@ -33,7 +33,7 @@ from torch import Tensor
 from vistask.checks import check_at_least, check_positive
 from vistask.objects.depth import SCREEN_POINTS, DepthCheck, evenly_spaced
 from vistask.objects.model import ObjectModel, appearance_descriptors
-from vistask.se3 import SE3KDE, compose, inverse, kernels
+from vistask.se3 import SE3KDE, compose, inverse, kernels, rigid_refit
 from vistask.vision import Patches
 
 NORMAL_TOLERANCE = 0.5
@@ -426,17 +426,12 @@ class SceneMatch:
             log_kern = log_kern + (cos - 1.0) / (1.0 - math.cos(NORMAL_TOLERANCE))
             kern = torch.exp(log_kern) * self.affinity
             total = kern.sum(dim=2)  # (H, N)
-            keep = total > 1e-6
-            enough = keep.sum(dim=1) >= 3
-            if not enough.any():
-                break
             target = (kern @ obs_t) / total.clamp_min(1e-6)[..., None]
-            weights = torch.where(keep, total.clamp(max=1.0), 0.0)
+            weights = torch.where(total > 1e-6, total.clamp(max=1.0), 0.0)
             source = self.instances[:, :3].expand(len(poses), -1, -1)
-            target = torch.where(keep[..., None], target, source)
-            R, t = roma.rigid_points_registration(source, target, weights=weights)
-            fitted = torch.cat([t, roma.rotmat_to_unitquat(R)], dim=-1)
-            poses = torch.where(enough[:, None], fitted, poses)
+            poses, moved = rigid_refit(poses, source, target, weights, 3)
+            if not moved:
+                break
         return poses
 
 

@@ -119,6 +119,35 @@ def apply(pose: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
     return pose[..., :3] + roma.quat_action(pose[..., 3:], points, is_normalized=True)
 
 
+def rigid_refit(
+    poses: torch.Tensor,
+    source: torch.Tensor,
+    target: torch.Tensor,
+    weights: torch.Tensor,
+    min_points: int,
+) -> tuple[torch.Tensor, bool]:
+    """Refit poses so that their frame's points land on matched world points (weighted Kabsch).
+
+    Args:
+        poses: (H, 7) current poses.
+        source: (H, N, 3) points in each pose's frame.
+        target: (H, N, 3) world points they are matched to (anything where the weight is 0).
+        weights: (H, N) match weights, 0 for unmatched points.
+        min_points: a pose with fewer matched points than this stays as it is.
+
+    Returns:
+        (H, 7) poses, and whether any of them was refitted.
+    """
+    matched = weights > 0
+    enough = matched.sum(dim=-1) >= min_points
+    if not enough.any():
+        return poses, False
+    target = torch.where(matched[..., None], target, source)  # keep NaN out of the fit
+    R, t = roma.rigid_points_registration(source, target, weights=weights)
+    fitted = torch.cat([t, roma.rotmat_to_unitquat(R)], dim=-1)
+    return torch.where(enough[:, None], fitted, poses), True
+
+
 def translation_distance(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     """Euclidean distance between translations: (..., 7) x (..., 7) -> (...)."""
     return (a[..., :3] - b[..., :3]).norm(dim=-1)
