@@ -129,7 +129,7 @@ def test_ray_actors_run_the_trials_of_local_processes() -> None:
             assert len(runner.last_info["reason"]) == runner.num_envs
         finally:
             runner.close()
-    (grasps_ray, success_ray, _), (grasps_proc, success_proc, _) = results
+    (grasps_ray, success_ray, _, _), (grasps_proc, success_proc, _, _) = results
     torch.testing.assert_close(grasps_ray, grasps_proc)
     assert torch.equal(success_ray, success_proc) and len(success_ray) == 5
 

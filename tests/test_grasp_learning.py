@@ -18,6 +18,7 @@ from vistask.grasp import (
     frames_to_poses,
     importance_weights,
     instance_grasp_density,
+    local_success_rates,
     mixture_proposal,
     reachable,
     scripted_teacher_grasps,
@@ -85,7 +86,9 @@ def test_importance_weights_recover_a_known_success_function() -> None:
     success = torch.rand(len(grasps), generator=_gen(6)) < s
     trials = Trials()
     trials.add(grasps, success, cycle=0)
-    empirical = empirical_density(trials, [proposal], c_rel=0.01, sigma_t=0.01, sigma_r=0.2)
+    empirical = empirical_density(
+        trials, [proposal], c_rel=0.01, sigma_t=0.01, sigma_r=0.2, reliability=False
+    )
     raw = grasps[success, :3].double()
     weighted = (empirical.weights.double()[:, None] * empirical.points[:, :3].double()).sum(0)
     # The proposal drags the raw successes towards +x; the weighted ones are centred on 0.
@@ -102,6 +105,50 @@ def test_importance_weights_recover_a_known_success_function() -> None:
     f = empirical.evaluate(queries)
     target = torch.exp(-(xs**2) / (2 * (width**2 + 0.01**2)))
     assert torch.allclose(f / f.max(), target / target.max(), atol=0.15)
+
+
+def test_local_success_rates_match_brute_force() -> None:
+    grasps = random_poses(40, generator=_gen(30))
+    grasps[:, :3] *= 0.02
+    success = torch.rand(40, generator=_gen(31)) < 0.5
+    trials = Trials()
+    trials.add(grasps, success, cycle=0)
+    w = 0.5 + torch.rand(40, generator=_gen(32), dtype=torch.float64)
+    rates = local_success_rates(trials, w, 0.01, 0.3, prior=2.0)
+    # K[i, j]: the kernel of trial j at successful grasp i, one particle at a time.
+    at = grasps[success]
+    K = torch.stack([SE3KDE(g[None], sigma_t=0.01, sigma_r=0.3).evaluate(at) for g in grasps], 1)
+    wn = (w / w.mean()).float()
+    overall = wn[success].sum() / wn.sum()
+    expected = ((K[:, success] * wn[success]).sum(1) + 2 * overall) / ((K * wn).sum(1) + 2)
+    torch.testing.assert_close(rates, expected, rtol=1e-4, atol=1e-5)
+    assert len(rates) == int(success.sum())
+
+
+def test_reliability_weighting_favours_grasps_that_succeed_again() -> None:
+    """Two places succeed: one always, one one time in three. Weighting successes by the
+    success rate around them moves draws from the shaky place to the sure one."""
+    sure, shaky = _pose([0.0, 0.0, 0.0], [0.0, 0.0, 0.0]), _pose([0.08, 0.0, 0.0], [0.0, 0.0, 0.0])
+    proposal = SE3KDE(torch.stack([sure, shaky]), sigma_t=0.015, sigma_r=0.1)
+    near = lambda g, c: (g[:, :3] - c[:3]).norm(dim=-1) < 0.02  # noqa: E731
+    grasps = proposal.sample(600, _gen(33))
+    p = near(grasps, sure).float() + near(grasps, shaky).float() / 3
+    trials = Trials()
+    trials.add(grasps, torch.rand(600, generator=_gen(34)) < p, cycle=0)
+    rates = local_success_rates(trials, torch.ones(600), 0.006, 0.16)
+    at_sure = near(trials.grasps[trials.success], sure)
+    assert rates[at_sure].mean() > 1.5 * rates[~at_sure].mean()
+    kwargs = {"c_rel": 1.0, "sigma_t": 0.003, "sigma_r": 0.08}
+    plain = empirical_density(trials, [proposal], reliability=False, **kwargs)
+    weighted = empirical_density(trials, [proposal], **kwargs)
+    share = lambda d: near(d.sample(4000, _gen(35)), sure).float().mean().item()  # noqa: E731
+    assert share(weighted) > share(plain) + 0.05
+    # With every trial a success, the rates are all 1 and the weights those of the paper.
+    trials.success[:] = True
+    torch.testing.assert_close(
+        empirical_density(trials, [proposal], **kwargs).weights,
+        empirical_density(trials, [proposal], reliability=False, **kwargs).weights,
+    )
 
 
 def test_importance_weights_reject_bad_input() -> None:
@@ -190,6 +237,29 @@ def test_reachability_filter() -> None:
     density = SE3KDE(torch.stack([down, up]), sigma_t=0.001, sigma_r=0.01)
     _, world, found = draw_reachable(density, identity_poses(8), ws, _gen(12))
     assert found.all() and reachable(world, ws).all()
+
+
+def test_trials_fall_back_on_the_hypothesis_where_the_density_reaches_nothing() -> None:
+    from vistask.grasp import run_trials
+
+    ws = Workspace(floor_z=0.8, base=(-0.56, 0.0, 0.9))
+    down = _pose([0.0, 0.0, 0.05], [math.pi, 0.0, 0.0])  # from above: reachable
+    up = _pose([0.0, 0.0, 0.05], [0.0, 0.0, 0.0])  # from below the table: never
+    hypothesis = SE3KDE(down[None], sigma_t=0.002, sigma_r=0.05)
+    learned = SE3KDE(up[None], sigma_t=0.002, sigma_r=0.05)
+    runner = _SyntheticRunner(down)
+    _, _, reach, fell = run_trials(learned, runner, 8, range(8), ws, _gen(40))
+    assert not reach.any() and not fell.any()
+    _, success, reach, fell = run_trials(
+        learned, runner, 8, range(8), ws, _gen(40), fallback=hypothesis
+    )
+    assert reach.all() and fell.all() and success.all()
+    # In learning, such draws count as the hypothesis's in the importance weights.
+    learner = GraspLearner(hypothesis, ws, sigma_t=0.002, sigma_r=0.05)
+    learner.run_cycle(runner, 8, range(8), _gen(41))
+    learner.proposal = learned
+    stats = learner.run_cycle(runner, 8, range(8, 16), _gen(42))
+    assert stats.fallback_rate == 1.0 and learner.trials.cycle.tolist() == [0] * 16
 
 
 def test_hypothesis_sources_give_valid_grasps() -> None:
@@ -294,7 +364,7 @@ def test_trials_do_not_depend_on_how_many_simulators_run_them() -> None:
         run_trials(density, _SeededRunner(b, target), 10, range(50, 60), None, _gen(5))
         for b in (1, 3, 4)
     ]
-    for grasps, success, reach in results[1:]:
+    for grasps, success, reach, _ in results[1:]:
         assert len(success) == 10
         torch.testing.assert_close(grasps, results[0][0])
         assert torch.equal(success, results[0][1]) and torch.equal(reach, results[0][2])

@@ -71,7 +71,7 @@ def bench_grasp_trials(
                 teacher = scripted_teacher_grasps(bounds)
                 density = demonstration_density(teacher, generator=generator)
                 t1 = time.perf_counter()
-                _, success, _ = run_trials(
+                _, success, _, _ = run_trials(
                     density, runner, trials, range(trials), runner.workspace, generator
                 )
                 seconds = time.perf_counter() - t1

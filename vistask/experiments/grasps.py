@@ -117,7 +117,9 @@ class GraspExperiment:
         sigma_t, sigma_r: bandwidth of the hypothesis density.
         empirical_sigma_t, empirical_sigma_r: bandwidth of the empirical density; smaller
             than the hypothesis's because its particles are already noisy successful draws,
-            and a wide kernel would add that noise again every cycle.
+            and a wide kernel would add that noise again every cycle (the box's scripted
+            top-down grasp, blurred by 1 cm and 0.25 rad, succeeds in 26 of 40 placements;
+            by 5 mm and 0.15 rad in 37 of 40).
         c_rel: importance-weight offset relative to the mean proposal density.
         seed: random seed of grasp draws.
         address: a Ray cluster to run the simulators on as actors (``RayGraspTrials``;
@@ -143,8 +145,8 @@ class GraspExperiment:
         num_envs: int = 2,
         sigma_t: float = 0.01,
         sigma_r: float = 0.25,
-        empirical_sigma_t: float = 0.005,
-        empirical_sigma_r: float = 0.15,
+        empirical_sigma_t: float = 0.003,
+        empirical_sigma_r: float = 0.08,
         c_rel: float = 1.0,
         seed: int = 0,
         address: str | None = None,
@@ -230,7 +232,7 @@ class GraspExperiment:
             eval_seeds = range(EVAL_SEED_BASE, EVAL_SEED_BASE + self.eval_trials)
             records: list[dict[str, Any]] = []
 
-            def evaluate(density: SE3KDE, phase: str) -> None:
+            def evaluate(density: SE3KDE, phase: str, fallback: SE3KDE | None = None) -> None:
                 """Plain draws and best-of-K draws on the same held-out placements."""
                 for suffix, k in (("", 1), (f"_best_of_{BEST_OF}", BEST_OF)):
                     found: list[dict[str, Any]] = []
@@ -244,6 +246,7 @@ class GraspExperiment:
                         step,
                         candidates=k,
                         records=found,
+                        fallback=fallback,
                     )
                     records.extend({"phase": phase + suffix, **f} for f in found)
 
@@ -296,7 +299,8 @@ class GraspExperiment:
             empirical = learner.empirical
             if empirical is not None:
                 empirical.save(out / "empirical.pt")
-                evaluate(empirical, "empirical")
+                # As in learning: the hypothesis where the learned density reaches nothing.
+                evaluate(empirical, "empirical", fallback=hypothesis)
             density_figure(
                 [("hypothesis", hypothesis), ("empirical", empirical)],
                 model.patches.positions,
@@ -391,7 +395,9 @@ def summarize_object(
         ``mean_pose_error_cm`` and ``mean_pose_error_deg`` over every trial (None with true
         poses), ``pose_failure_share`` (of the failed held-out trials of the learned
         density, those whose pose estimate was off: see ``pose_failure_share``),
-        ``failure_reasons`` of those trials, ``learning_success``, ``trials_per_minute``,
+        ``failure_reasons`` of those trials, ``fallback_share`` (of the learned density's
+        sampled held-out trials, those drawn from the hypothesis because the learned density
+        had no reachable grasp), ``learning_success``, ``trials_per_minute``,
         ``empirical_particles``, ``empirical_ess`` and the per-cycle figures.
     """
     summary: dict[str, Any] = {
@@ -421,6 +427,9 @@ def summarize_object(
     summary["pose_failure_share"] = pose_failure_share(held_out)
     reasons = [r.get("reason", "") for r in held_out if not r["success"]]
     summary["failure_reasons"] = {k: reasons.count(k) for k in sorted(set(reasons))}
+    summary["fallback_share"] = (
+        sum(r.get("fallback", False) for r in held_out) / len(held_out) if held_out else 0.0
+    )
     learn_seconds = sum(h.seconds for h in learner.history)
     empirical = learner.empirical
     summary.update(

@@ -7,6 +7,15 @@ grasp density, which becomes the next cycle's proposal. The offset c bounds the 
 successes found where q is tiny (it keeps one lucky grasp from swallowing the density); here
 c = ``c_rel`` times the mean of q over the trials, so it scales with q.
 
+Every success is also weighted by the success rate of the trials around it (an
+importance-weighted kernel regression of the outcomes, ``local_success_rates``). The paper's
+weights alone estimate the grasp affordance, where a grasp that succeeded once by luck weighs
+as much as one that succeeds every time; drawing from it succeeds as often as the hypothesis's
+successes did on average. With the local rates, the next cycles draw near grasps that keep
+succeeding, and the learned density is the one a robot should sample from. Where the current
+proposal has no reachable grasp for a placement (it concentrated on the grasps of one way the
+object lies), the trial draws from the hypothesis instead, and counts as its draw.
+
 Successes of all cycles are pooled. Cycle k drew its n_k trials from q_k, so together the
 N trials were drawn from the mixture q(g) = sum_k (n_k / N) q_k(g), and that is the q in the
 weights (the balance heuristic of multiple importance sampling). Dividing by each success's
@@ -192,11 +201,13 @@ class Trials:
     def __len__(self) -> int:
         return len(self.success)
 
-    def add(self, grasps: torch.Tensor, success: torch.Tensor, cycle: int) -> None:
-        """Append one cycle's (n, 7) grasps and (n,) successes."""
+    def add(self, grasps: torch.Tensor, success: torch.Tensor, cycle: int | torch.Tensor) -> None:
+        """Append (n, 7) grasps and (n,) successes drawn from proposal ``cycle`` (one index
+        for all, or (n,) indices)."""
         self.grasps = torch.cat([self.grasps, grasps.float().cpu()])
         self.success = torch.cat([self.success, success.bool().cpu()])
-        self.cycle = torch.cat([self.cycle, torch.full((len(success),), cycle, dtype=torch.long)])
+        cycle = torch.as_tensor(cycle, dtype=torch.long).cpu().expand(len(success))
+        self.cycle = torch.cat([self.cycle, cycle])
 
 
 def mixture_proposal(trials: Trials, proposals: Sequence[SE3KDE]) -> torch.Tensor:
@@ -214,6 +225,44 @@ def mixture_proposal(trials: Trials, proposals: Sequence[SE3KDE]) -> torch.Tenso
     return q
 
 
+RELIABILITY_WIDTH = 2.0
+"""The local success rate is estimated with kernels this many times the density's: success
+varies more smoothly than the particles are spread, and a wider neighbourhood holds enough
+trials to tell a reliable grasp from a lucky one."""
+
+
+def local_success_rates(
+    trials: Trials,
+    weights: torch.Tensor,
+    sigma_t: float,
+    sigma_r: float,
+    prior: float = 1.0,
+) -> torch.Tensor:
+    """(S,) the success rate around every successful trial's grasp.
+
+    An importance-weighted kernel regression of the outcomes, shrunk towards the overall
+    rate by ``prior`` pseudo-trials: a lone success scores (1 + prior * p) / (1 + prior),
+    a success among failures less, one among successes more.
+
+    Args:
+        trials: all trials (N of them, S successful).
+        weights: (N,) importance weights of the trials.
+        sigma_t, sigma_r: kernel of the regression.
+        prior: weight of the overall success rate, in trials.
+
+    Returns:
+        (S,) rates in [0, 1], in the order of the successful trials.
+    """
+    success = trials.success
+    w = (weights / weights.mean()).float()
+    at = trials.grasps[success]
+    # SE3KDE normalises its weights: multiply back by their sums to get sums of w_j K_ij.
+    tried = SE3KDE(trials.grasps, w, sigma_t, sigma_r).evaluate(at) * w.sum()
+    won = SE3KDE(at, w[success], sigma_t, sigma_r).evaluate(at) * w[success].sum()
+    overall = w[success].sum() / w.sum()
+    return ((won + prior * overall) / (tried + prior)).clamp(0.0, 1.0)
+
+
 def empirical_density(
     trials: Trials,
     proposals: Sequence[SE3KDE],
@@ -221,6 +270,7 @@ def empirical_density(
     sigma_t: float = 0.01,
     sigma_r: float = 0.25,
     kernel: str = "gaussian",
+    reliability: bool = True,
 ) -> SE3KDE | None:
     """The importance-weighted successes as a density (None without any success).
 
@@ -229,16 +279,25 @@ def empirical_density(
         proposals: the density each cycle drew from (``proposals[k]`` for cycle k).
         c_rel: c as a fraction of the mean mixture proposal density over the trials.
         sigma_t, sigma_r, kernel: kernel of the result.
+        reliability: also weight every success by the success rate around it
+            (``local_success_rates``), so that draws favour grasps that succeed again over
+            lucky ones; False gives the paper's empirical density, which estimates the
+            grasp affordance itself.
 
     Returns:
-        an ``SE3KDE`` over the successful grasps with weights 1 / (q(g) + c).
+        an ``SE3KDE`` over the successful grasps with weights 1 / (q(g) + c), times the
+        local success rates with ``reliability``.
     """
     if not trials.success.any():
         return None
     q = mixture_proposal(trials, proposals)
     w = importance_weights(q, c_rel * float(q.mean()))
     keep = trials.success
-    return SE3KDE(trials.grasps[keep], w[keep].float(), sigma_t, sigma_r, kernel=kernel)
+    weights = w[keep].float()
+    if reliability:
+        width = RELIABILITY_WIDTH
+        weights = weights * local_success_rates(trials, w, width * sigma_t, width * sigma_r)
+    return SE3KDE(trials.grasps[keep], weights, sigma_t, sigma_r, kernel=kernel)
 
 
 @dataclass
@@ -250,6 +309,7 @@ class CycleStats:
     successes: int
     success_rate: float
     reachable_rate: float
+    fallback_rate: float
     effective_sample_size: float
     particles: int
     seconds: float
@@ -264,6 +324,9 @@ class GraspLearner:
         workspace: reachability filter for the drawn grasps (None: no filter).
         c_rel: the weight offset c as a fraction of the mean proposal density at the trials.
         sigma_t, sigma_r: bandwidth of the empirical density (default: the hypothesis's).
+        reliability: weight successes by the success rate around them (see
+            ``empirical_density``); the next cycles then draw near grasps that keep
+            succeeding, and the learned density is what a robot should sample from.
     """
 
     def __init__(
@@ -273,6 +336,7 @@ class GraspLearner:
         c_rel: float = 1.0,
         sigma_t: float | None = None,
         sigma_r: float | None = None,
+        reliability: bool = True,
     ) -> None:
         if c_rel < 0:
             raise ValueError(f"c_rel must be non-negative, got {c_rel}")
@@ -281,6 +345,7 @@ class GraspLearner:
         self.c_rel = c_rel
         self.sigma_t = hypothesis.sigma_t if sigma_t is None else sigma_t
         self.sigma_r = hypothesis.sigma_r if sigma_r is None else sigma_r
+        self.reliability = reliability
         self.proposal = hypothesis
         self.proposals: list[SE3KDE] = []  # the density each cycle drew from
         self.trials = Trials()
@@ -290,7 +355,12 @@ class GraspLearner:
     def empirical(self) -> SE3KDE | None:
         """The current empirical grasp density (None before the first success)."""
         return empirical_density(
-            self.trials, self.proposals, self.c_rel, self.sigma_t, self.sigma_r
+            self.trials,
+            self.proposals,
+            self.c_rel,
+            self.sigma_t,
+            self.sigma_r,
+            reliability=self.reliability,
         )
 
     def run_cycle(
@@ -316,7 +386,7 @@ class GraspLearner:
             the cycle's figures; the proposal is replaced by the new empirical density.
         """
         start = time.perf_counter()
-        grasps, success, reach = run_trials(
+        grasps, success, reach, fallback = run_trials(
             self.proposal,
             runner,
             n_trials,
@@ -325,8 +395,12 @@ class GraspLearner:
             generator,
             progress,
             records=records,
+            fallback=self.hypothesis,
         )
-        self.trials.add(grasps, success, len(self.proposals))
+        # Grasps drawn from the hypothesis where the proposal had none in reach count as
+        # draws of the hypothesis, the first cycle's proposal, in the importance weights.
+        cycle = torch.where(fallback, 0, len(self.proposals))
+        self.trials.add(grasps, success, cycle)
         self.proposals.append(self.proposal)
         empirical = self.empirical
         if empirical is not None:
@@ -338,6 +412,7 @@ class GraspLearner:
             successes=int(success.sum()),
             success_rate=float(success.float().mean()),
             reachable_rate=float(reach.float().mean()),
+            fallback_rate=float(fallback.float().mean()),
             effective_sample_size=0.0 if empirical is None else empirical.effective_sample_size(),
             particles=0 if empirical is None else len(empirical),
             seconds=seconds,
@@ -361,6 +436,7 @@ class GraspLearner:
             "c_rel": self.c_rel,
             "sigma_t": self.sigma_t,
             "sigma_r": self.sigma_r,
+            "reliability": self.reliability,
             "workspace": None if self.workspace is None else asdict(self.workspace),
             "history": [asdict(h) for h in self.history],
         }
@@ -384,6 +460,7 @@ class GraspLearner:
             c_rel=state["c_rel"],
             sigma_t=state["sigma_t"],
             sigma_r=state["sigma_r"],
+            reliability=state["reliability"],
         )
         learner.trials = Trials(**state["trials"])
         learner.proposals = [SE3KDE.from_state_dict(p) for p in state["proposals"]]
@@ -421,7 +498,8 @@ def run_trials(
     progress: Callable[[int], None] | None = None,
     candidates: int = 1,
     records: list[dict[str, Any]] | None = None,
-) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    fallback: SE3KDE | None = None,
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
     """Execute grasps drawn from an object-frame density on fresh object placements.
 
     Trial k places the objects with ``seeds[k]`` and draws its grasp with its own generator
@@ -441,33 +519,35 @@ def run_trials(
         candidates: see ``draw_reachable`` (1: plain samples).
         records: if given, one dict per trial is appended: ``seed``, ``grasp`` (object
             frame), ``world_grasp``, ``reachable``, ``success``, and the runner's
-            diagnostics named in ``RESET_FIELDS`` and ``STEP_FIELDS``.
+            diagnostics named in ``RESET_FIELDS`` and ``STEP_FIELDS``, and ``fallback``.
+        fallback: a density to draw from where ``density`` has no reachable grasp for a
+            placement (a learned density that has concentrated on the grasps of one way
+            the object lies may have none for another; the hypothesis still has).
 
     Returns:
         (N, 7) object-frame grasps as drawn (relative to the pose they were placed with),
-        (N,) bool successes, (N,) bool reachable flags.
+        (N,) bool successes, (N,) bool reachable flags, (N,) bool drawn from ``fallback``.
     """
     B = runner.num_envs
     if len(seeds) < n_trials:
         raise ValueError(f"need {n_trials} placement seeds for {n_trials} trials, got {len(seeds)}")
     draw_seeds = trial_seeds(generator, math.ceil(n_trials / B) * B)
     device = density.points.device
-    grasps, success, reach = [], [], []
+    grasps, success, reach, fell = [], [], [], []
     for start in range(0, n_trials, B):
         n = min(B, n_trials - start)
         batch = list(seeds[start : start + n])
         batch += batch[-1:] * (B - n)
         placed = runner.reset(batch).to(density.points)
-        draws = [
-            draw_reachable(
-                density,
-                placed[j : j + 1],
-                workspace,
-                torch.Generator(device).manual_seed(draw_seeds[start + j]),
-                candidates=candidates,
-            )
-            for j in range(B)
-        ]
+        draws, used = [], torch.zeros(B, dtype=torch.bool)
+        for j in range(B):
+            g = torch.Generator(device).manual_seed(draw_seeds[start + j])
+            pose = placed[j : j + 1]
+            draw = draw_reachable(density, pose, workspace, g, candidates=candidates)
+            if fallback is not None and not draw[2].all():
+                draw = draw_reachable(fallback, pose, workspace, g, candidates=candidates)
+                used[j] = True
+            draws.append(draw)
         local, world, ok = (torch.cat(parts) for parts in zip(*draws, strict=True))
         outcome, info = runner.execute(world)
         # Recorded relative to the pose the robot acted on (as a robot would); with
@@ -475,6 +555,7 @@ def run_trials(
         grasps.append(local[:n])
         success.append(outcome.bool().cpu()[:n])
         reach.append(ok.cpu()[:n])
+        fell.append(used[:n])
         if records is not None:
             reset_info = getattr(runner, "last_reset_info", {})
             for j in range(n):
@@ -484,13 +565,14 @@ def run_trials(
                     "world_grasp": world[j].tolist(),
                     "reachable": bool(ok[j]),
                     "success": bool(outcome[j]),
+                    "fallback": bool(used[j]),
                 }
                 record.update(_fields(reset_info, RESET_FIELDS, j))
                 record.update(_fields(info, STEP_FIELDS, j))
                 records.append(record)
         if progress is not None:
             progress(n)
-    return torch.cat(grasps), torch.cat(success), torch.cat(reach)
+    return torch.cat(grasps), torch.cat(success), torch.cat(reach), torch.cat(fell)
 
 
 def _fields(info: dict[str, Any], keys: Sequence[str], j: int) -> dict[str, Any]:
@@ -513,17 +595,20 @@ def evaluate_density(
     progress: Callable[[int], None] | None = None,
     candidates: int = 1,
     records: list[dict[str, Any]] | None = None,
+    fallback: SE3KDE | None = None,
 ) -> dict[str, float]:
     """Success rate of grasps drawn from ``density`` on the placements ``seeds``.
 
     ``candidates`` > 1 executes, per placement, the likeliest of that many reachable draws
-    (see ``draw_reachable``); 1 executes plain samples. ``records``: see ``run_trials``.
+    (see ``draw_reachable``); 1 executes plain samples. ``records`` and ``fallback``: see
+    ``run_trials``.
 
     Returns:
-        ``success_rate``, ``trials``, ``reachable_rate``, ``seconds``, ``trials_per_minute``.
+        ``success_rate``, ``trials``, ``reachable_rate``, ``fallback_rate``, ``seconds``,
+        ``trials_per_minute``.
     """
     start = time.perf_counter()
-    _, success, reach = run_trials(
+    _, success, reach, fell = run_trials(
         density,
         runner,
         n_trials,
@@ -533,12 +618,14 @@ def evaluate_density(
         progress=progress,
         candidates=candidates,
         records=records,
+        fallback=fallback,
     )
     seconds = time.perf_counter() - start
     return {
         "success_rate": float(success.float().mean()),
         "trials": len(success),
         "reachable_rate": float(reach.float().mean()),
+        "fallback_rate": float(fell.float().mean()),
         "seconds": seconds,
         "trials_per_minute": 60.0 * len(success) / seconds,
     }
