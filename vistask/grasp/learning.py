@@ -295,8 +295,8 @@ def empirical_density(
     keep = trials.success
     weights = w[keep].float()
     if reliability:
-        width = RELIABILITY_WIDTH
-        weights = weights * local_success_rates(trials, w, width * sigma_t, width * sigma_r)
+        k = RELIABILITY_WIDTH
+        weights = weights * local_success_rates(trials, w, k * sigma_t, k * sigma_r)
     return SE3KDE(trials.grasps[keep], weights, sigma_t, sigma_r, kernel=kernel)
 
 
