@@ -65,7 +65,9 @@ class RLVCAgent(VisualAgent):
             where a relation carries the state (a gauge's needle), they are what reads it.
         compaction: hold the classes in a BDD; when the stages of a database end, merge
             classes with close values and interchangeable greedy actions, then drop the
-            features that no percept seen needs (False: a decision tree that only splits).
+            features that no percept seen needs; splits take a feature the classes already
+            test when it does half as well as the best (False: a decision tree that only
+            splits, on the best feature).
         compact_every: with ``compaction``, merge every this many stages as well (None:
             only when the stages of a database end).
         compaction_tolerance: merge classes whose values, and the values of their greedy

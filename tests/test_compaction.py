@@ -230,6 +230,25 @@ def test_classes_that_outgrow_the_bdd_go_on_as_their_history():
     assert loaded.selected_features == classes.selected_features
 
 
+def test_features_drop_when_their_cofactors_outgrow_the_bdd(monkeypatch):
+    bdd_step = ClassBDD._bdd_step
+
+    def out_of_memory_at_cofactors(self, step):
+        def no_node():
+            raise RuntimeError("cofactor failed")  # what dd.cudd's ``let`` raises
+
+        bdd_step(self, no_node if step.__name__ == "cofactors" else step)
+
+    monkeypatch.setattr(ClassBDD, "_bdd_step", out_of_memory_at_cofactors)
+    classes = ClassBDD(3)
+    classes.split(classes.split(0, 0), 1)  # {0 absent: 0, 0 present: {1 absent: 1, present: 2}}
+    seen = torch.tensor([[False, False, True], [True, False, False]])  # feature 1 never present
+    with pytest.warns(UserWarning, match="outgrew the BDD's memory budget"):
+        assert classes.simplify(seen) == [1]
+    assert not classes.in_bdd and classes.selected_features == [0]
+    assert classes.classify(torch.tensor([[True, True, False]])).tolist() == [1]
+
+
 def test_rlvc_merges_on_when_its_classes_outgrow_the_bdd(monkeypatch):
     bdd_step = ClassBDD._bdd_step
 

@@ -79,8 +79,11 @@ def test_min_count_bounds_each_side_of_a_split():
     assert split.feature == 0 and split.p_value == 0.0
 
 
-def brute_force_splits(presence, states, actions, deltas, n_states, n_actions, alpha, min_count):
-    """Eq. (7) and Welch's t-test (scipy), class by class, action by action, feature by feature."""
+def brute_force_splits(
+    presence, states, actions, deltas, n_states, n_actions, alpha, min_count, prefer=(), share=0.5
+):
+    """Eq. (7) and Welch's t-test (scipy), class by class, action by action, feature by feature;
+    the best significant split on a feature in ``prefer`` instead, if it does ``share`` as well."""
     from scipy import stats
 
     best = {}
@@ -101,6 +104,9 @@ def brute_force_splits(presence, states, actions, deltas, n_states, n_actions, a
         significant = [c for c in candidates if c[3] < alpha]
         if significant:
             best[s] = max(significant, key=lambda c: c[0])  # the first among equals
+            preferred = [c for c in significant if c[2] in prefer and c[0] >= share * best[s][0]]
+            if preferred:
+                best[s] = max(preferred, key=lambda c: c[0])
     return best
 
 
@@ -116,16 +122,26 @@ def test_split_search_equals_a_per_class_brute_force():
         deltas += (1.0 + s) * (presence[:, 7 * s + 3] & (states == s) & (actions == s % 3))
     deltas += 3.0 * (presence[:, 25] & (states == 4))  # a twin feature, under every action
     rows, features = sparse(presence)
-    splits = find_splits(rows, features, states, actions, deltas, n_states, n_actions, f, 0.05, 8)
-    expected = brute_force_splits(presence, states, actions, deltas, n_states, n_actions, 0.05, 8)
-    assert {s.state for s in splits} == set(expected) and len(expected) >= 3
-    for split in splits:
-        reduction, action, feature, p_value = expected[split.state]
-        assert (split.action, split.feature) == (action, feature)
-        assert split.reduction == pytest.approx(reduction, rel=1e-9)
-        assert split.p_value == pytest.approx(p_value, rel=1e-6)
-    assert [s.reduction for s in splits] == sorted((s.reduction for s in splits), reverse=True)
-    assert expected[4][2] == 25  # of the twins 25 and 35, the first
+    data = (states, actions, deltas, n_states, n_actions)
+    # Class 3's best split is on twin features 24 and 34, the first taken (as 25 of 25 and 35
+    # in class 4); class 2's feature 8 does 0.10 as well as its best (17), class 4's 20 0.10.
+    for prefer, share, chosen in [
+        ((), 0.5, {0: 3, 1: 10, 2: 17, 3: 24, 4: 25}),
+        ((34, 8, 20), 0.3, {0: 3, 1: 10, 2: 17, 3: 34, 4: 25}),
+        ((34, 8, 20), 0.1, {0: 3, 1: 10, 2: 8, 3: 34, 4: 20}),
+    ]:
+        mask = torch.zeros(f, dtype=torch.bool)
+        mask[list(prefer)] = True
+        splits = find_splits(rows, features, *data, f, 0.05, 8, prefer=mask, prefer_share=share)
+        expected = brute_force_splits(presence, *data, 0.05, 8, prefer=prefer, share=share)
+        assert {s: e[2] for s, e in expected.items()} == chosen
+        assert {s.state for s in splits} == set(expected)
+        for split in splits:
+            reduction, action, feature, p_value = expected[split.state]
+            assert (split.action, split.feature) == (action, feature)
+            assert split.reduction == pytest.approx(reduction, rel=1e-9)
+            assert split.p_value == pytest.approx(p_value, rel=1e-6)
+        assert [s.reduction for s in splits] == sorted((s.reduction for s in splits), reverse=True)
 
 
 def test_value_iteration_matches_a_hand_solved_mdp():

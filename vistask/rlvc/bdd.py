@@ -115,8 +115,10 @@ class ClassBDD:
             return
         try:
             self.functions = step()
-        except ValueError as error:
-            if "NULL" not in str(error):  # dd.cudd's word for "CUDD returned no node"
+        except (ValueError, RuntimeError) as error:
+            # dd.cudd's words for "CUDD returned no node": a NULL pointer (operators), a failed
+            # cofactor (``let``, which drops features).
+            if "NULL" not in str(error) and "cofactor failed" not in str(error):
                 raise
             warnings.warn(
                 f"the visual classes outgrew the BDD's memory budget "
@@ -221,7 +223,11 @@ class ClassBDD:
         if not dropped:
             return dropped
         absent = {_name(f): False for f in dropped}
-        self._bdd_step(lambda: [self.bdd.let(absent, u) for u in self.functions])
+
+        def cofactors() -> list:
+            return [self.bdd.let(absent, u) for u in self.functions]
+
+        self._bdd_step(cofactors)
         for step in self.history:
             if "splits" in step:
                 for c in [c for c, (f, _) in step["splits"].items() if f in dropped]:

@@ -91,7 +91,9 @@ class RLVC:
             grows.
         compound_tolerances: tolerances of candidate compounds, in units of keypoint scale.
         compaction: hold the classes in a BDD (``ClassBDD``) and merge interchangeable
-            classes when learning stops (False: a ``ClassTree`` that only splits).
+            classes when learning stops, and split classes on features they already test
+            where those do half as well as the best split (False: a ``ClassTree`` that only
+            splits, on the best feature).
         compact_every: with ``compaction``, merge every this many stages as well (None:
             only when learning stops).
         compaction_tolerance: classes merge when their values, and the values of their
@@ -233,6 +235,9 @@ class RLVC:
                 self.n_features,
                 self.alpha,
                 self.min_count,
+                # Compaction aims at few features: a feature the classes already test
+                # splits a class when it does half as well as the class's best split.
+                prefer=self._tested_mask() if self.compaction else None,
             )
             if self.use_compounds:
                 compound_start = time.perf_counter()
@@ -283,6 +288,12 @@ class RLVC:
                 len(self.structure.selected_features),
             )
         return self
+
+    def _tested_mask(self) -> torch.Tensor:
+        """(F,) bool: the features that the classes test."""
+        mask = torch.zeros(self.n_features, dtype=torch.bool)
+        mask[self.structure.selected_features] = True
+        return mask
 
     def _compaction_due(self) -> bool:
         stage = len(self.history)

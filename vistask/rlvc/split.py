@@ -96,6 +96,8 @@ def find_splits(
     n_features: int,
     alpha: float = 0.05,
     min_count: int = 10,
+    prefer: torch.Tensor | None = None,
+    prefer_share: float = 0.5,
 ) -> list[Split]:
     """Best significant split of every class.
 
@@ -106,6 +108,10 @@ def find_splits(
         n_states, n_actions, n_features: sizes S, A, F.
         alpha: significance level of Welch's two-sample t-test.
         min_count: minimum number of interactions on each side of a split.
+        prefer: (F,) bool, features to split on before the others: a class splits on its best
+            significant preferred feature when that reduces the SSE by at least
+            ``prefer_share`` of the class's best significant split (None: the best split).
+        prefer_share: see ``prefer``.
 
     Returns:
         One ``Split`` per class whose best split is significant, by decreasing reduction.
@@ -159,6 +165,13 @@ def find_splits(
     # ones (features with the same presence split alike), the first in (action, feature) order.
     best = torch.nonzero(significant).flatten()
     best = best[torch.argsort(reduction[best], descending=True, stable=True)]
+    if prefer is not None and len(best):
+        state = state_of[cg[best]]
+        top = torch.zeros(n_states, dtype=torch.float64).scatter_reduce_(
+            0, state, reduction[best], "amax", include_self=False
+        )
+        first = prefer[cf[best]] & (reduction[best] >= prefer_share * top[state])
+        best = torch.cat([best[first], best[~first]])  # still by reduction on either side
     chosen = best[first_in_group(state_of[cg[best]], n_states)].tolist()  # one per class
     splits = [
         Split(
