@@ -386,7 +386,7 @@ class GraspLearner:
             the cycle's figures; the proposal is replaced by the new empirical density.
         """
         start = time.perf_counter()
-        grasps, success, reach, fallback = run_trials(
+        grasps, success, reach, from_fallback = run_trials(
             self.proposal,
             runner,
             n_trials,
@@ -399,7 +399,7 @@ class GraspLearner:
         )
         # Grasps drawn from the hypothesis where the proposal had none in reach count as
         # draws of the hypothesis, the first cycle's proposal, in the importance weights.
-        cycle = torch.where(fallback, 0, len(self.proposals))
+        cycle = torch.where(from_fallback, 0, len(self.proposals))
         self.trials.add(grasps, success, cycle)
         self.proposals.append(self.proposal)
         empirical = self.empirical
@@ -412,7 +412,7 @@ class GraspLearner:
             successes=int(success.sum()),
             success_rate=float(success.float().mean()),
             reachable_rate=float(reach.float().mean()),
-            fallback_rate=float(fallback.float().mean()),
+            fallback_rate=float(from_fallback.float().mean()),
             effective_sample_size=0.0 if empirical is None else empirical.effective_sample_size(),
             particles=0 if empirical is None else len(empirical),
             seconds=seconds,
@@ -533,7 +533,7 @@ def run_trials(
         raise ValueError(f"need {n_trials} placement seeds for {n_trials} trials, got {len(seeds)}")
     draw_seeds = trial_seeds(generator, math.ceil(n_trials / B) * B)
     device = density.points.device
-    grasps, success, reach, fell = [], [], [], []
+    grasps, success, reach, from_fallback = [], [], [], []
     for start in range(0, n_trials, B):
         n = min(B, n_trials - start)
         batch = list(seeds[start : start + n])
@@ -555,7 +555,7 @@ def run_trials(
         grasps.append(local[:n])
         success.append(outcome.bool().cpu()[:n])
         reach.append(ok.cpu()[:n])
-        fell.append(used[:n])
+        from_fallback.append(used[:n])
         if records is not None:
             reset_info = getattr(runner, "last_reset_info", {})
             for j in range(n):
@@ -572,7 +572,7 @@ def run_trials(
                 records.append(record)
         if progress is not None:
             progress(n)
-    return torch.cat(grasps), torch.cat(success), torch.cat(reach), torch.cat(fell)
+    return torch.cat(grasps), torch.cat(success), torch.cat(reach), torch.cat(from_fallback)
 
 
 def _fields(info: dict[str, Any], keys: Sequence[str], j: int) -> dict[str, Any]:
@@ -608,7 +608,7 @@ def evaluate_density(
         ``trials_per_minute``.
     """
     start = time.perf_counter()
-    _, success, reach, fell = run_trials(
+    _, success, reach, from_fallback = run_trials(
         density,
         runner,
         n_trials,
@@ -625,7 +625,7 @@ def evaluate_density(
         "success_rate": float(success.float().mean()),
         "trials": len(success),
         "reachable_rate": float(reach.float().mean()),
-        "fallback_rate": float(fell.float().mean()),
+        "fallback_rate": float(from_fallback.float().mean()),
         "seconds": seconds,
         "trials_per_minute": 60.0 * len(success) / seconds,
     }
