@@ -1,9 +1,11 @@
 """NBP on synthetic scenes: messages, products, pose recovery in clutter, clear errors."""
 
+from dataclasses import replace
+
 import pytest
 import torch
 
-from vistask.objects import NBP, ObjectModel, multiply, push_up
+from vistask.objects import NBP, ObjectModel, appearance_descriptors, multiply, push_up
 from vistask.objects.synthetic import synthetic_object, synthetic_scene
 from vistask.se3 import SE3KDE, compose, inverse, random_poses, rotation_distance
 from vistask.vision import Patches, pose_error
@@ -92,6 +94,26 @@ def test_empty_or_foreign_scenes_are_clear_errors(model: ObjectModel) -> None:
         FAST.infer(model, Patches(obj.positions, obj.directions, obj.colors))
 
 
+def test_colours_moved_out_of_tight_classes_are_matched_within_wider_ones(
+    model: ObjectModel,
+) -> None:
+    # Another lamp darkens one side of every edge: each observed colour pair lies between
+    # one and two radii from its class's centre.
+    pose = random_poses(1, 0.1, generator=torch.Generator().manual_seed(5))[0]
+    scene = synthetic_scene(pose, n_clutter=0, keep=0.8, seed=5)
+    shade = torch.tensor([0.75, 1.0])[:, None]
+    relit = Patches(scene.positions, scene.directions, scene.colors * shade, scene.normals)
+    moved = appearance_descriptors(relit.colors) - model.centres[model.classify(scene.colors)]
+    labels = model.classify(scene.colors)
+    radii = torch.stack([moved.norm(dim=1)[labels == k].min() for k in range(model.n_classes)])
+    tight = replace(model, radii=radii / 1.5)
+    assert (tight.classify(relit.colors) == -1).all()
+    with pytest.raises(ValueError, match="no scene patch matches"):
+        NBP(n_particles=400, mode_starts=24, min_matches=0).infer(tight, relit)
+    t_err, r_err = pose_error(FAST.infer(tight, relit).pose, pose)
+    assert t_err < 0.005 and r_err < 3.0
+
+
 def test_bad_arguments_are_named_in_the_error() -> None:
     with pytest.raises(ValueError, match="n_particles must be >= 1, got 0"):
         NBP(n_particles=0)
@@ -99,3 +121,5 @@ def test_bad_arguments_are_named_in_the_error() -> None:
         NBP(evidence_sigma_r=-0.1)
     with pytest.raises(ValueError, match="cutoff"):
         NBP(cutoff=0.0)
+    with pytest.raises(ValueError, match="min_matches must be >= 0, got -1"):
+        NBP(min_matches=-1)

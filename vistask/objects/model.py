@@ -247,14 +247,15 @@ class ObjectModel:
         return appearance_descriptors(self.patches.colors[self.labels == k])
 
     # --- appearance --------------------------------------------------------------------------
-    def classify(self, colors: Tensor) -> Tensor:
-        """Appearance class of observed patches: (N, 2, 3) colours -> (N,) class or -1."""
+    def classify(self, colors: Tensor, radius_scale: float = 1.0) -> Tensor:
+        """Appearance class of observed patches: (N, 2, 3) colours -> (N,) class or -1 (farther
+        than ``radius_scale`` times its radius from the nearest class's centre)."""
         desc = appearance_descriptors(colors).to(self.centres.device)
         if len(desc) == 0:
             return torch.zeros(0, dtype=torch.long, device=desc.device)
         dist = torch.cdist(desc, self.centres)
         best, k = dist.min(dim=1)
-        return torch.where(best <= self.radii[k], k, torch.full_like(k, -1))
+        return torch.where(best <= radius_scale * self.radii[k], k, torch.full_like(k, -1))
 
     # --- persistence -------------------------------------------------------------------------
     def state_dict(self) -> dict:

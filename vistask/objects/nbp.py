@@ -39,6 +39,9 @@ from vistask.vision import Patches
 NORMAL_TOLERANCE = 0.5
 """Radians; the normal-agreement scale of the refinement's soft correspondences."""
 
+WIDER_CLASSES = 2.0
+"""Factor on the appearance classes' radii when too few scene patches fall within them."""
+
 
 def _normals(frames: Tensor) -> Tensor:
     """(..., 7) patch frames -> (..., 3) their z axes (the surface normals)."""
@@ -94,6 +97,7 @@ def scene_evidence(
     sigma_t: float = 0.004,
     sigma_r: float = 0.35,
     device: torch.device | str | None = None,
+    radius_scale: float = 1.0,
 ) -> dict[int, Evidence | None]:
     """Observation potentials: per primitive feature, a density of the matching patch frames.
 
@@ -102,6 +106,7 @@ def scene_evidence(
         patches: (M) world-frame scene patches with normals.
         sigma_t, sigma_r: bandwidth (metres, radians) of the observation potentials.
         device: device of the densities (default: the patches').
+        radius_scale: factor on the appearance classes' radii (``ObjectModel.classify``).
 
     Raises:
         ValueError: no patches, or patches without normals.
@@ -111,7 +116,7 @@ def scene_evidence(
     if patches.normals is None:
         raise ValueError("scene patches need normals (full patch frames)")
     device = device or patches.device
-    classes = model.classify(patches.colors.cpu()).to(device)
+    classes = model.classify(patches.colors.cpu(), radius_scale).to(device)
     frames = patches.frames().to(device)
     colors = appearance_descriptors(patches.colors).to(device)
     out: dict[int, Evidence | None] = {}
@@ -122,6 +127,11 @@ def scene_evidence(
             density = SE3KDE(frames[mine], sigma_t=sigma_t, sigma_r=sigma_r)
             out[i] = Evidence(density, colors[mine])
     return out
+
+
+def _matched(evidence: dict[int, Evidence | None]) -> int:
+    """Number of scene patches bound to some primitive feature."""
+    return sum(len(e.colors) for e in evidence.values() if e is not None)
 
 
 def push_up(
@@ -219,11 +229,16 @@ class NBP:
         refine_iters: iterations of that refinement.
         color_sigma: scale of the colour similarity (descriptor distance) used when checking
             and refining hypotheses against observed patches.
+        min_matches: when fewer scene patches than this fall within the model's appearance
+            classes, they are matched again within classes of ``WIDER_CLASSES`` times the
+            radius: other light moves the colours of a plain object, whose classes are
+            tight, out of them.
         top_down: also compute every feature's top-down belief.
 
     Raises:
         ValueError: n_particles, n_modes or mode_starts below 1, a bandwidth or color_sigma
-            not positive, floor or refine_sigma_t negative, or cutoff not positive.
+            not positive, floor, refine_sigma_t or min_matches negative, or cutoff not
+            positive.
     """
 
     def __init__(
@@ -241,6 +256,7 @@ class NBP:
         refine_sigma_t: float = 0.006,
         refine_iters: int = 3,
         color_sigma: float = 0.1,
+        min_matches: int = 10,
         top_down: bool = False,
     ) -> None:
         check_at_least(1, n_particles=n_particles, n_modes=n_modes, mode_starts=mode_starts)
@@ -251,7 +267,13 @@ class NBP:
             evidence_sigma_r=evidence_sigma_r,
             color_sigma=color_sigma,
         )
-        check_at_least(0, floor=floor, refine_sigma_t=refine_sigma_t, depth_draws=depth_draws)
+        check_at_least(
+            0,
+            floor=floor,
+            refine_sigma_t=refine_sigma_t,
+            depth_draws=depth_draws,
+            min_matches=min_matches,
+        )
         if cutoff is not None and not cutoff > 0:
             raise ValueError(
                 f"cutoff must be positive (multiples of sigma_t) or None, got {cutoff}"
@@ -269,6 +291,7 @@ class NBP:
         self.refine_sigma_t = refine_sigma_t
         self.refine_iters = refine_iters
         self.color_sigma = color_sigma
+        self.min_matches = min_matches
         self.top_down = top_down
 
     def infer(
@@ -298,9 +321,12 @@ class NBP:
         device = torch.device(device or "cpu")
         gen = torch.Generator(device=device).manual_seed(seed)
         patches = patches.to(device)
-        evidence = scene_evidence(
-            model, patches, self.evidence_sigma_t, self.evidence_sigma_r, device
-        )
+        sigmas = (self.evidence_sigma_t, self.evidence_sigma_r)
+        evidence = scene_evidence(model, patches, *sigmas, device)
+        if _matched(evidence) < self.min_matches:
+            wider = scene_evidence(model, patches, *sigmas, device, radius_scale=WIDER_CLASSES)
+            if _matched(wider) > _matched(evidence):
+                evidence = wider
         if all(e is None for e in evidence.values()):
             raise ValueError(f"no scene patch matches the appearance of {model.name!r}")
 
