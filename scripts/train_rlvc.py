@@ -17,7 +17,7 @@ from pathlib import Path
 import gymnasium as gym
 
 import vistask.envs  # noqa: F401  (registers the environments)
-from vistask.cli import interrupt_on_sigterm, positive_int, stopped_run_settings
+from vistask.cli import interrupt_on_sigterm, positive_int, stopped_run_settings, unit_fraction
 from vistask.experiments.train_rljc import train_rljc
 from vistask.experiments.train_rlvc import train_rlvc
 
@@ -43,6 +43,13 @@ def main() -> None:
         "--compaction", action="store_true", help="RLVC's classes in a BDD, merged by compaction"
     )
     parser.add_argument(
+        "--compaction-tolerance",
+        type=unit_fraction,
+        default=None,
+        help="with --compaction: merge classes whose values differ by at most this share of "
+        "their range (default 0.02; 0.01 on the car)",
+    )
+    parser.add_argument(
         "--resume",
         type=Path,
         default=None,
@@ -50,6 +57,8 @@ def main() -> None:
     )
     parser.add_argument("--no-progress", action="store_true")
     args = parser.parse_args()
+    if args.compaction_tolerance is not None and not args.compaction:
+        parser.error("--compaction-tolerance needs --compaction")
     run = dict(env_id=args.env, env_kwargs=args.env_kwargs, seed=args.seed, out=args.out)
     run["progress"] = not args.no_progress
     if args.interactions is not None:
@@ -58,6 +67,7 @@ def main() -> None:
         saved = stopped_run_settings(parser, args.resume, "settings.json")
         args.compounds = saved.pop("compounds", False)
         args.compaction = saved.pop("compaction", False)
+        args.compaction_tolerance = saved.pop("compaction_tolerance", None)
         run = {**saved, "out": args.resume, "progress": run["progress"]}
         args.env, args.env_kwargs = saved["env_id"], saved["env_kwargs"]
     interrupt_on_sigterm()
@@ -68,7 +78,12 @@ def main() -> None:
             parser.error("--compounds and --compaction apply to RLVC (discrete actions), not RLJC")
         train_rljc(**run)
     else:
-        train_rlvc(**run, compounds=args.compounds, compaction=args.compaction)
+        train_rlvc(
+            **run,
+            compounds=args.compounds,
+            compaction=args.compaction,
+            compaction_tolerance=args.compaction_tolerance,
+        )
 
 
 if __name__ == "__main__":

@@ -290,6 +290,16 @@ def test_train_rlvc_writes_a_summary_that_its_saved_agent_reproduces(tmp_path):
     assert summary["starts_never_exiting"] == int((result.returns == 0).sum())
 
 
+def test_train_rlvc_passes_the_compaction_tolerance_and_keeps_it_for_resuming(tmp_path):
+    run = dict(env_kwargs=SMALL, interactions=2000, out=tmp_path, progress=False, pictures=False)
+    summary = train_rlvc(**run, compaction=True, compaction_tolerance=0.01)
+    assert summary["compaction_tolerance"] == 0.01
+    agent = RLVCAgent.load(tmp_path / "rlvc_agent.pt", gym.make("vistask/VisualMaze-v0", **SMALL))
+    assert agent.compaction and agent.compaction_tolerance == 0.01
+    with pytest.raises(ValueError, match=r"other settings \(compaction_tolerance\)"):
+        train_rlvc(**run, compaction=True, compaction_tolerance=0.05)
+
+
 def test_a_classifier_with_compounds_round_trips_and_tests_them(small_agent, tmp_path):
     maze = VisualMazeEnv(**SMALL)
     images = [maze.percept_at(p) for p in start_positions(maze.geometry, 60)]

@@ -241,6 +241,7 @@ def train_rlvc(
     pictures: bool = True,
     compounds: bool = False,
     compaction: bool = False,
+    compaction_tolerance: float | None = None,
 ) -> dict:
     """Learn visual classes with ``RLVCAgent``'s defaults, score the greedy policy, save the
     agent, its TensorBoard run, pictures and ``summary.json`` in ``out``.
@@ -256,6 +257,7 @@ def train_rlvc(
         pictures: draw values and policies (the maze, the car).
         compounds: let the agent make compound features (``RLVCAgent``'s ``compounds``).
         compaction: hold the agent's classes in a BDD and merge them (``compaction``).
+        compaction_tolerance: the agent's ``compaction_tolerance`` (None: its default).
 
     Returns:
         The summary written to ``summary.json``.
@@ -263,19 +265,13 @@ def train_rlvc(
     start = time.perf_counter()
     out = run_dir("train_rlvc", out)
     settings = {"env_id": env_id, "env_kwargs": env_kwargs or {}, "interactions": interactions}
-    check_same_settings(
-        out / "settings.json",
-        {**settings, "seed": seed, "compounds": compounds, "compaction": compaction},
-    )
+    options = {"compounds": compounds, "compaction": compaction}
+    if compaction_tolerance is not None:
+        options["compaction_tolerance"] = compaction_tolerance
+    check_same_settings(out / "settings.json", {**settings, "seed": seed, **options})
     env = gym.make(env_id, **(env_kwargs or {}))
     scorer = Scorer(env_id, env_kwargs)
-    agent = RLVCAgent(
-        env,
-        compounds=compounds,
-        compaction=compaction,
-        seed=seed,
-        tensorboard_log=out / "tensorboard",
-    )
+    agent = RLVCAgent(env, **options, seed=seed, tensorboard_log=out / "tensorboard")
     evaluations = EvaluateEvery(scorer)
     agent = learn_resumable(agent, interactions, out, evaluations, progress)
     learned = time.perf_counter()
@@ -292,6 +288,7 @@ def train_rlvc(
         "selected_features": len(rlvc.structure.selected_features),
         "compound_features": len(rlvc.compound_features),
         "compounds_made": len(rlvc.compounds),
+        "compaction_tolerance": agent.compaction_tolerance if compaction else None,
         "vocabulary_size": agent.extractor.n_features,
         "interactions": agent.num_timesteps,
         "evaluations": evaluations.evaluations,
