@@ -103,8 +103,8 @@ def test_colours_moved_out_of_tight_classes_are_matched_within_wider_ones(
     scene = synthetic_scene(pose, n_clutter=0, keep=0.8, seed=5)
     shade = torch.tensor([0.75, 1.0])[:, None]
     relit = Patches(scene.positions, scene.directions, scene.colors * shade, scene.normals)
-    moved = appearance_descriptors(relit.colors) - model.centres[model.classify(scene.colors)]
     labels = model.classify(scene.colors)
+    moved = appearance_descriptors(relit.colors) - model.centres[labels]
     radii = torch.stack([moved.norm(dim=1)[labels == k].min() for k in range(model.n_classes)])
     tight = replace(model, radii=radii / 1.5)
     assert (tight.classify(relit.colors) == -1).all()
