@@ -323,9 +323,10 @@ class NBP:
         patches = patches.to(device)
         sigmas = (self.evidence_sigma_t, self.evidence_sigma_r)
         evidence = scene_evidence(model, patches, *sigmas, device)
-        if _matched(evidence) < self.min_matches:
+        matched = _matched(evidence)
+        if matched < self.min_matches:
             wider = scene_evidence(model, patches, *sigmas, device, radius_scale=WIDER_CLASSES)
-            if _matched(wider) > _matched(evidence):
+            if _matched(wider) > matched:
                 evidence = wider
         if all(e is None for e in evidence.values()):
             raise ValueError(f"no scene patch matches the appearance of {model.name!r}")
