@@ -6,8 +6,16 @@ import pytest
 import roma
 import torch
 
-from vistask.objects import DepthCheck
-from vistask.vision import Camera, RGBDView, intrinsics_from_fovy, look_at, pose_error
+from vistask.objects import NBP, DepthCheck, ObjectModel
+from vistask.vision import (
+    Camera,
+    Patches,
+    RGBDView,
+    Symmetry,
+    intrinsics_from_fovy,
+    look_at,
+    pose_error,
+)
 from vistask.vision.camera import pixel_grid
 
 HALF = torch.tensor([0.05, 0.03, 0.04])  # the box: [-hx, hx] x [-hy, hy] x [0, 2 hz]
@@ -55,6 +63,28 @@ def _box_points(step: float = 0.008) -> torch.Tensor:
     return torch.cat([f.reshape(-1, 3) for f in faces])
 
 
+def _box_patches() -> Patches:
+    """Patches on the box's top and sides, each face with its normal and a colour pair of
+    its own (points on an edge count for the first face they lie on)."""
+    points = _box_points()
+    hx, hy, hz = HALF.tolist()
+    on_face = [
+        (points[:, 2] > 2 * hz - 1e-6, (0.0, 0.0, 1.0)),
+        (points[:, 0] < -hx + 1e-6, (-1.0, 0.0, 0.0)),
+        (points[:, 0] > hx - 1e-6, (1.0, 0.0, 0.0)),
+        (points[:, 1] < -hy + 1e-6, (0.0, -1.0, 0.0)),
+        (points[:, 1] > hy - 1e-6, (0.0, 1.0, 0.0)),
+    ]
+    face = torch.full((len(points),), -1)
+    for k, (mask, _) in reversed(list(enumerate(on_face))):
+        face[mask] = k
+    normals = torch.tensor([n for _, n in on_face])[face]
+    directions = torch.linalg.cross(normals, torch.tensor([0.6, 0.8, 0.0]).expand_as(normals))
+    directions[face == 0] = torch.tensor([1.0, 0.0, 0.0])
+    pairs = torch.rand(len(on_face), 2, 3, generator=torch.Generator().manual_seed(0))
+    return Patches(points, directions, pairs[face], normals)
+
+
 @pytest.fixture(scope="module")
 def check() -> DepthCheck:
     return DepthCheck([_view((0.35, -0.3, 0.35)), _view((-0.3, -0.35, 0.3))], floor_z=0.0)
@@ -99,6 +129,29 @@ def test_views_without_depth_leave_poses_unrefined_and_weigh_nothing() -> None:
     points, poses = _box_points(), torch.stack([TRUTH, _moved(0.01, 0, 0)])
     assert torch.equal(blind.refine(poses, points), poses)
     assert torch.equal(blind.weights(poses, points), torch.zeros(2))
+
+
+def test_nbp_finds_by_depth_an_object_whose_appearance_misleads(check: DepthCheck) -> None:
+    # The box's own patches show colours of no class (another light); four stray patches
+    # elsewhere look like its top. NBP's votes point at the strays; patch pairs screened
+    # against the depth, which alone scores so few matches, find the box.
+    box = _box_patches()
+    model = ObjectModel.learn(box, "box", n_classes=5)
+    relit = Patches(box.positions, box.directions, torch.full_like(box.colors, 0.5), box.normals)
+    strays = box.select(box.normals[:, 2] > 0.5).select(torch.arange(4))
+    strays = Patches(
+        strays.positions + torch.tensor([0.25, 0.2, 0.0]),
+        strays.directions,
+        strays.colors,
+        strays.normals,
+    )
+    scene = Patches.cat([relit, strays])
+    assert (model.classify(scene.colors, radius_scale=2.0) >= 0).sum() == 4
+    half_turn = Symmetry.about_axis((0.0, 0.0, 1.0), order=2)
+    for pair_draws, found in ((0, False), (256, True)):
+        nbp = NBP(n_particles=400, mode_starts=24, pair_draws=pair_draws)
+        err_t, err_r = pose_error(nbp.infer(model, scene, depth=check).pose, TRUTH, half_turn)
+        assert bool(err_t < 0.005 and err_r < 3.0) == found
 
 
 def test_bad_arguments_are_named_in_the_error() -> None:

@@ -13,9 +13,11 @@ Every density is an ``SE3KDE`` over world poses of a feature's frame.
 - The root's belief, mapped to the object frame, gives pose hypotheses (its modes, by mean
   shift); each is scored by the top-down prediction of every primitive instance against the
   evidence (how much of the model the scene explains), best first. Given the depth images
-  (``DepthCheck``), poses drawn from the belief and screened against the depth join the
-  modes; each hypothesis is pulled onto the observed surfaces and its score weighted by how
-  much of the model the depth explains and how little it rules out.
+  (``DepthCheck``), poses screened against the depth join the modes: poses drawn from the
+  belief, and poses that put any model patch on any scene patch, whatever their appearance
+  (other light or an unseen side can mislead the appearance, not the geometry). Each
+  hypothesis is pulled onto the observed surfaces and its score weighted by the square of
+  how much of the model the depth explains, less what it rules out.
 - Top-down: the root's belief is pushed down through the potentials (X_c = X_p ∘ r) and
   reweighted by each child's bottom-up belief (meta) or evidence (primitive), which gives a
   belief for every feature.
@@ -41,6 +43,9 @@ NORMAL_TOLERANCE = 0.5
 
 WIDER_CLASSES = 2.0
 """Factor on the appearance classes' radii when too few scene patches fall within them."""
+
+_HALF_TURN = torch.tensor([0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0])
+"""A half turn about z (pose [t, q XYZW]): a patch frame turned about its normal."""
 
 
 def _normals(frames: Tensor) -> Tensor:
@@ -127,6 +132,32 @@ def scene_evidence(
             density = SE3KDE(frames[mine], sigma_t=sigma_t, sigma_r=sigma_r)
             out[i] = Evidence(density, colors[mine])
     return out
+
+
+def patch_pair_poses(
+    model_frames: Tensor, scene_frames: Tensor, n: int, generator: torch.Generator
+) -> Tensor:
+    """``n`` object poses, each putting a model patch on a scene patch, drawn at random.
+
+    A patch's direction follows its colour gradient, which another light can reverse, so
+    half of the draws put the model patch turned by half a turn about its normal.
+
+    Args:
+        model_frames: (N, 7) object-frame frames of the model's patches.
+        scene_frames: (M, 7) world frames of the scene's patches.
+        n: number of draws (uniform over model patch, scene patch and turn).
+        generator: the draws' generator (its device is the result's).
+
+    Returns:
+        (n, 7) world poses X = s ∘ inverse(m).
+    """
+    device = generator.device
+    i = torch.randint(len(scene_frames), (n,), generator=generator, device=device)
+    j = torch.randint(len(model_frames), (n,), generator=generator, device=device)
+    model = model_frames.to(device)[j]
+    turned = torch.arange(n, device=device) % 2 == 1
+    model[turned] = compose(model[turned], _HALF_TURN.to(device).expand(int(turned.sum()), 7))
+    return compose(scene_frames.to(device)[i], inverse(model))
 
 
 def _matched(evidence: dict[int, Evidence | None]) -> int:
@@ -224,6 +255,9 @@ class NBP:
             instances, or ambiguous poses).
         depth_draws: with depth images, poses drawn from the object belief and screened
             against them; the ``n_modes`` best join the modes as hypotheses.
+        pair_draws: with depth images, poses putting a model patch on a scene patch,
+            whatever their appearance (``patch_pair_poses``), screened against them; the
+            ``n_modes`` best join the hypotheses too.
         mode_starts: mean-shift starts for the modes.
         refine_sigma_t: position scale (metres) of the final top-down refinement; 0 disables.
         refine_iters: iterations of that refinement.
@@ -232,7 +266,7 @@ class NBP:
         min_matches: when fewer scene patches than this fall within the model's appearance
             classes, they are matched again within classes of ``WIDER_CLASSES`` times the
             radius: other light moves the colours of a plain object, whose classes are
-            tight, out of them.
+            tight, out of them; the depth alone then scores the hypotheses.
         top_down: also compute every feature's top-down belief.
 
     Raises:
@@ -252,6 +286,7 @@ class NBP:
         cutoff: float | None = None,
         n_modes: int = 4,
         depth_draws: int = 128,
+        pair_draws: int = 256,
         mode_starts: int = 48,
         refine_sigma_t: float = 0.006,
         refine_iters: int = 3,
@@ -272,6 +307,7 @@ class NBP:
             floor=floor,
             refine_sigma_t=refine_sigma_t,
             depth_draws=depth_draws,
+            pair_draws=pair_draws,
             min_matches=min_matches,
         )
         if cutoff is not None and not cutoff > 0:
@@ -287,6 +323,7 @@ class NBP:
         self.cutoff = cutoff
         self.n_modes = n_modes
         self.depth_draws = depth_draws
+        self.pair_draws = pair_draws
         self.mode_starts = mode_starts
         self.refine_sigma_t = refine_sigma_t
         self.refine_iters = refine_iters
@@ -310,7 +347,9 @@ class NBP:
             device: where to compute (default CPU).
             seed: seed of the sampling.
             depth: the scene's depth images; when given, every hypothesis is refined onto
-                the observed surfaces and its score multiplied by ``depth.weights``.
+                the observed surfaces and its score multiplied by the square of
+                ``depth.weights`` (the depth weight alone where fewer than ``min_matches``
+                scene patches match the appearance).
 
         Returns:
             the pose hypotheses and the densities computed on the way.
@@ -324,7 +363,8 @@ class NBP:
         sigmas = (self.evidence_sigma_t, self.evidence_sigma_r)
         evidence = scene_evidence(model, patches, *sigmas, device)
         matched = _matched(evidence)
-        if matched < self.min_matches:
+        appearance_counts = matched >= self.min_matches
+        if not appearance_counts:
             wider = scene_evidence(model, patches, *sigmas, device, radius_scale=WIDER_CLASSES)
             if _matched(wider) > matched:
                 evidence = wider
@@ -362,14 +402,20 @@ class NBP:
             k=self.n_modes, n_starts=self.mode_starts, generator=gen
         )
         points = model.patches.positions.cpu()
-        if depth is not None and self.depth_draws > 0:
-            # Modes follow the votes; a target mostly hidden among lookalikes gets few, so
-            # poses the depth supports are also taken from the belief's particles.
-            i = torch.multinomial(object_belief.weights, self.depth_draws, True, generator=gen)
-            draws = object_belief.points[i]
-            fit = depth.weights(draws.cpu(), evenly_spaced(points, SCREEN_POINTS))
-            best = torch.argsort(fit, descending=True)[: self.n_modes].to(device)
-            candidates = torch.cat([candidates, draws[best]])
+        if depth is not None:
+            # Modes follow the votes; a target mostly hidden among lookalikes gets few, and
+            # one under other light or tipped onto an unseen side gets misleading ones. Poses
+            # the depth supports are also taken from the belief's particles and from pairs
+            # of patches whatever their appearance.
+            i = torch.multinomial(
+                object_belief.weights, max(self.depth_draws, 1), True, generator=gen
+            )
+            pairs = patch_pair_poses(model.patches.frames(), patches.frames(), self.pair_draws, gen)
+            screen = evenly_spaced(points, SCREEN_POINTS)
+            for draws in (object_belief.points[i[: self.depth_draws]], pairs):
+                fit = depth.weights(draws.cpu(), screen)
+                best = torch.argsort(fit, descending=True)[: self.n_modes].to(device)
+                candidates = torch.cat([candidates, draws[best]])
         match = SceneMatch.build(model, evidence, self.color_sigma)
         if self.refine_sigma_t > 0:
             candidates = match.refine(candidates, self.refine_sigma_t, self.refine_iters)
@@ -377,7 +423,10 @@ class NBP:
             candidates = depth.refine(candidates.cpu(), points).to(device)
         scores = match.support(candidates, self.evidence_sigma_t, self.evidence_sigma_r)
         if depth is not None:
-            scores = scores * depth.weights(candidates.cpu(), points).to(device)
+            # Squared: what the depth explains outweighs the appearance, which other light
+            # or an unseen side leaves weak; with too few matches the depth decides alone.
+            fit = depth.weights(candidates.cpu(), points).to(device)
+            scores = scores * fit**2 if appearance_counts else fit
         order = torch.argsort(scores, descending=True)
         result = NBPResult(
             candidates[order], scores[order], object_belief, messages, beliefs, evidence
