@@ -5,12 +5,15 @@ import json
 import numpy as np
 import pytest
 
+from vistask.agents import RLVCAgent
 from vistask.experiments.compare_compaction import compare_compaction
 from vistask.experiments.tasks import task_for
 
 
 def test_small_comparison_writes_both_methods_and_the_sawtooth(tmp_path):
-    summary = compare_compaction(interactions=3000, seeds=[0], out=tmp_path, progress=False)
+    summary = compare_compaction(
+        interactions=3000, seeds=[0], contrast_threshold=0.01, out=tmp_path, progress=False
+    )
     saved = json.loads((tmp_path / "summary.json").read_text())
     for method in ("tree", "bdd"):
         for key in ("classes", "selected_features", "return_ratio", "test_error", "seconds"):
@@ -18,7 +21,9 @@ def test_small_comparison_writes_both_methods_and_the_sawtooth(tmp_path):
         assert 0 <= saved[method]["test_error"] <= 1
     assert saved["bdd"]["classes"] < saved["tree"]["classes"]
     assert (tmp_path / "sawtooth.png").stat().st_size > 0
-    assert (tmp_path / "bdd-seed0.pt").is_file()
+    assert saved["contrast_threshold"] == 0.01
+    for method in ("tree", "bdd"):
+        assert RLVCAgent.load(tmp_path / f"{method}-seed0.pt").contrast_threshold == 0.01
 
 
 def test_maze_test_set_marks_the_oracles_action_optimal():

@@ -111,6 +111,7 @@ def compare_compaction(
     compact_every: int | None = None,
     tolerance: float = 0.02,
     max_stages: int = 300,
+    contrast_threshold: float | None = None,
     out: str | Path | None = None,
     progress: bool = True,
 ) -> dict:
@@ -132,6 +133,7 @@ def compare_compaction(
         compact_every, tolerance: the BDD agent's ``compact_every`` and
             ``compaction_tolerance``.
         max_stages: both agents' stage cap (``RLVCAgent``'s ``max_stages``).
+        contrast_threshold: both agents' SIFT detection threshold (default: the agent's).
         out: output folder (default ``runs/compare_compaction-<time>``).
         progress: show progress bars.
     """
@@ -155,6 +157,8 @@ def compare_compaction(
         "compaction_tolerance": tolerance,
         "max_stages": max_stages,
     }
+    if contrast_threshold is not None:
+        agent_kwargs["contrast_threshold"] = contrast_threshold
     runs = {m: [] for m in methods}
     histories = {m: [] for m in methods}
     for seed in seeds:
@@ -180,6 +184,7 @@ def compare_compaction(
         "compact_every": compact_every,
         "tolerance": tolerance,
         "max_stages": max_stages,
+        "contrast_threshold": contrast_threshold,
         "seeds": list(seeds),
     }
     for method in methods:
