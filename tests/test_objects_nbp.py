@@ -6,9 +6,9 @@ import pytest
 import torch
 
 from vistask.objects import NBP, ObjectModel, appearance_descriptors, multiply, push_up
-from vistask.objects.nbp import patch_pair_poses
+from vistask.objects.nbp import SceneMatch, patch_pair_poses, scene_evidence
 from vistask.objects.synthetic import synthetic_object, synthetic_scene
-from vistask.se3 import SE3KDE, compose, inverse, random_poses, rotation_distance
+from vistask.se3 import SE3KDE, compose, inverse, kernels, random_poses, rotation_distance
 from vistask.vision import Patches, pose_error
 
 FAST = NBP(n_particles=400, mode_starts=24)
@@ -113,6 +113,39 @@ def test_colours_moved_out_of_tight_classes_are_matched_within_wider_ones(
         NBP(n_particles=400, mode_starts=24, min_matches=0).infer(tight, relit)
     t_err, r_err = pose_error(FAST.infer(tight, relit).pose, pose)
     assert t_err < 0.005 and r_err < 3.0
+
+
+def test_scene_match_blocks_give_the_support_of_every_instance_against_every_patch(
+    model: ObjectModel,
+) -> None:
+    pose = random_poses(1, 0.1, generator=torch.Generator().manual_seed(4))[0]
+    scene = synthetic_scene(pose, n_clutter=100, seed=4)
+    evidence = scene_evidence(model, scene)
+    match = SceneMatch.build(model, evidence, color_sigma=0.1)
+    # Brute force: every instance against every observed patch, other features masked out.
+    inst, obs, same, color = [], [], [], []
+    for leaf, ev in evidence.items():
+        if ev is not None:
+            k = model.features[leaf].appearance
+            inst.append(model.instances(k))
+            obs.append(ev.density.points)
+            same.append(torch.full((len(inst[-1]),), leaf))
+            color.append((model.instance_colors(k), ev.colors, torch.full((len(obs[-1]),), leaf)))
+    inst_c = torch.cat([c[0] for c in color])
+    obs_c = torch.cat([c[1] for c in color])
+    obs_l = torch.cat([c[2] for c in color])
+    affinity = (torch.cat(same)[:, None] == obs_l[None]) * torch.exp(
+        -0.5 * torch.cdist(inst_c, obs_c).square() / 0.1**2
+    )
+    poses = torch.cat([pose[None], random_poses(3, 0.1, generator=torch.Generator())])
+    pred = compose(poses[:, None], torch.cat(inst)[None])
+    o = torch.cat(obs)
+    d2 = torch.cdist(pred[..., :3], o[None, :, :3]).square()
+    dot = (pred[..., 3:] @ o[:, 3:].T).abs()
+    kern = torch.exp(-0.5 * d2 / 0.004**2 + kernels.quaternion_kappa(0.35) * (dot - 1.0))
+    expected = (kern * affinity).amax(dim=2).sum(dim=1)
+    torch.testing.assert_close(match.support(poses, 0.004, 0.35), expected, rtol=1e-5, atol=1e-4)
+    assert expected[0] > expected[1:].max()
 
 
 def test_patch_pair_poses_put_the_model_patch_on_the_scene_patch_either_way_round() -> None:

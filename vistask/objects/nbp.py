@@ -440,15 +440,22 @@ class NBP:
 class SceneMatch:
     """Model instances against scene observations, for top-down checks of object poses.
 
+    An instance matches only observations of its own primitive feature, so the match is
+    kept in blocks, one per feature with observations: the work is the sum of the blocks'
+    sizes, not all instances times all observations.
+
     Attributes:
-        instances: (N, 7) object-frame frames of every model patch of a primitive feature.
-        observed: (M, 7) world frames of the scene patches bound to a primitive feature.
-        affinity: (N, M) same primitive feature times colour similarity exp(-d^2 / 2 s^2).
+        instances: (N, 7) object-frame frames of every model patch of a primitive feature,
+            grouped by feature.
+        observed: (M, 7) world frames of the scene patches bound to a primitive feature,
+            grouped the same way.
+        blocks: per feature, its instances' slice of ``instances``, its observations' slice
+            of ``observed``, and their colour similarity exp(-d^2 / 2 s^2) (N_k, M_k).
     """
 
     instances: Tensor
     observed: Tensor
-    affinity: Tensor
+    blocks: list[tuple[slice, slice, Tensor]]
 
     @classmethod
     def build(
@@ -456,21 +463,25 @@ class SceneMatch:
     ) -> SceneMatch:
         """The match of ``model`` against ``evidence``; ``color_sigma`` scales the colour
         similarity."""
-        inst, obs, inst_c, obs_c, inst_l, obs_l = [], [], [], [], [], []
+        inst, obs, blocks = [], [], []
+        n = m = 0
         for leaf, ev in evidence.items():
             if ev is None:
                 continue
             k = model.features[leaf].appearance
             inst.append(model.instances(k).to(ev.colors))
-            inst_c.append(model.instance_colors(k).to(ev.colors))
-            inst_l.append(torch.full((len(inst[-1]),), leaf, device=ev.colors.device))
             obs.append(ev.density.points)
-            obs_c.append(ev.colors)
-            obs_l.append(torch.full((len(obs[-1]),), leaf, device=ev.colors.device))
-        same = torch.cat(inst_l)[:, None] == torch.cat(obs_l)[None]
-        d2 = torch.cdist(torch.cat(inst_c), torch.cat(obs_c)).square()
-        affinity = same * torch.exp(-0.5 * d2 / color_sigma**2)
-        return cls(torch.cat(inst), torch.cat(obs), affinity)
+            d2 = torch.cdist(model.instance_colors(k).to(ev.colors), ev.colors).square()
+            size_n, size_m = len(inst[-1]), len(obs[-1])
+            blocks.append(
+                (
+                    slice(n, n + size_n),
+                    slice(m, m + size_m),
+                    torch.exp(-0.5 * d2 / color_sigma**2),
+                )
+            )
+            n, m = n + size_n, m + size_m
+        return cls(torch.cat(inst), torch.cat(obs), blocks)
 
     def predict(self, poses: Tensor) -> Tensor:
         """(H, 7) object poses -> (H, N, 7) world frames of the model instances."""
@@ -481,11 +492,15 @@ class SceneMatch:
         (SE(3) kernel of bandwidth sigma_t, sigma_r, peak 1) and colours match an observed
         patch of the same primitive feature."""
         pred = self.predict(poses)
-        d2 = torch.cdist(pred[..., :3], self.observed[None, :, :3]).square()
-        dot = (pred[..., 3:] @ self.observed[:, 3:].T).abs()
         kappa = kernels.quaternion_kappa(sigma_r)
-        kern = torch.exp(-0.5 * d2 / sigma_t**2 + kappa * (dot - 1.0)) * self.affinity
-        return kern.amax(dim=2).sum(dim=1)
+        total = torch.zeros(len(poses), dtype=pred.dtype, device=pred.device)
+        for rows, cols, affinity in self.blocks:
+            p, o = pred[:, rows], self.observed[cols]
+            d2 = torch.cdist(p[..., :3], o[None, :, :3]).square()
+            dot = (p[..., 3:] @ o[:, 3:].T).abs()
+            kern = torch.exp(-0.5 * d2 / sigma_t**2 + kappa * (dot - 1.0)) * affinity
+            total = total + kern.amax(dim=2).sum(dim=1)
+        return total
 
     def refine(self, poses: Tensor, sigma_t: float, iters: int) -> Tensor:
         """Sharpen hypotheses (H, 7) -> (H, 7): each predicted instance is pulled to the
@@ -494,17 +509,21 @@ class SceneMatch:
         to the pulled points (Kabsch) gives the new pose. A hypothesis with fewer than
         three matching instances stays where it is."""
         obs_t, obs_n = self.observed[:, :3], _normals(self.observed)
+        source = self.instances[:, :3].expand(len(poses), -1, -1)
         for _ in range(iters):
             pred = self.predict(poses)  # (H, N, 7)
-            # Axial normal agreement keeps patches of other faces out of the match.
-            cos = (_normals(pred) @ obs_n.T).abs()
-            log_kern = -0.5 * torch.cdist(pred[..., :3], obs_t[None]).square() / sigma_t**2
-            log_kern = log_kern + (cos - 1.0) / (1.0 - math.cos(NORMAL_TOLERANCE))
-            kern = torch.exp(log_kern) * self.affinity
-            total = kern.sum(dim=2)  # (H, N)
-            target = (kern @ obs_t) / total.clamp_min(1e-6)[..., None]
+            pred_t, pred_n = pred[..., :3], _normals(pred)
+            target, total = torch.zeros_like(pred_t), torch.zeros_like(pred_t[..., 0])
+            for rows, cols, affinity in self.blocks:
+                # Axial normal agreement keeps patches of other faces out of the match.
+                cos = (pred_n[:, rows] @ obs_n[cols].T).abs()
+                log_kern = -0.5 * torch.cdist(pred_t[:, rows], obs_t[None, cols]).square()
+                log_kern = log_kern / sigma_t**2 + (cos - 1.0) / (1.0 - math.cos(NORMAL_TOLERANCE))
+                kern = torch.exp(log_kern) * affinity
+                total[:, rows] = kern.sum(dim=2)
+                target[:, rows] = kern @ obs_t[cols]
+            target = target / total.clamp_min(1e-6)[..., None]
             weights = torch.where(total > 1e-6, total.clamp(max=1.0), 0.0)
-            source = self.instances[:, :3].expand(len(poses), -1, -1)
             poses, moved = rigid_refit(poses, source, target, weights, 3)
             if not moved:
                 break
