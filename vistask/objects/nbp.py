@@ -75,7 +75,9 @@ class NBPResult:
     Attributes:
         poses: (H, 7) object-pose hypotheses (world), best first.
         scores: (H,) top-down support of each: the soft count of model patches whose
-            predicted pose matches an observed patch of the same appearance.
+            predicted pose matches an observed patch of the same appearance; with depth
+            images, times the square of the depth weight (or the depth weight alone when
+            too few patches match the appearance).
         object_belief: density of the object pose (the root's belief in the object frame).
         messages: feature index -> bottom-up message to its parent (None without evidence).
         beliefs: feature index -> bottom-up belief of meta-features, and top-down beliefs of
@@ -407,12 +409,14 @@ class NBP:
             # one under other light or tipped onto an unseen side gets misleading ones. Poses
             # the depth supports are also taken from the belief's particles and from pairs
             # of patches whatever their appearance.
-            i = torch.multinomial(
-                object_belief.weights, max(self.depth_draws, 1), True, generator=gen
-            )
+            from_belief = object_belief.points[:0]
+            if self.depth_draws:
+                weights = object_belief.weights
+                i = torch.multinomial(weights, self.depth_draws, True, generator=gen)
+                from_belief = object_belief.points[i]
             pairs = patch_pair_poses(model.patches.frames(), patches.frames(), self.pair_draws, gen)
             screen = evenly_spaced(points, SCREEN_POINTS)
-            for draws in (object_belief.points[i[: self.depth_draws]], pairs):
+            for draws in (from_belief, pairs):
                 fit = depth.weights(draws.cpu(), screen)
                 best = torch.argsort(fit, descending=True)[: self.n_modes].to(device)
                 candidates = torch.cat([candidates, draws[best]])
