@@ -123,21 +123,21 @@ def test_scene_match_blocks_give_the_support_of_every_instance_against_every_pat
     evidence = scene_evidence(model, scene)
     match = SceneMatch.build(model, evidence, color_sigma=0.1)
     # Brute force: every instance against every observed patch, other features masked out.
-    inst, obs, same, color = [], [], [], []
+    inst, inst_c, inst_l, obs, obs_c, obs_l = [], [], [], [], [], []
     for leaf, ev in evidence.items():
         if ev is not None:
             k = model.features[leaf].appearance
             inst.append(model.instances(k))
+            inst_c.append(model.instance_colors(k))
+            inst_l.append(torch.full((len(inst[-1]),), leaf))
             obs.append(ev.density.points)
-            same.append(torch.full((len(inst[-1]),), leaf))
-            color.append((model.instance_colors(k), ev.colors, torch.full((len(obs[-1]),), leaf)))
-    inst_c = torch.cat([c[0] for c in color])
-    obs_c = torch.cat([c[1] for c in color])
-    obs_l = torch.cat([c[2] for c in color])
-    affinity = (torch.cat(same)[:, None] == obs_l[None]) * torch.exp(
-        -0.5 * torch.cdist(inst_c, obs_c).square() / 0.1**2
-    )
-    poses = torch.cat([pose[None], random_poses(3, 0.1, generator=torch.Generator())])
+            obs_c.append(ev.colors)
+            obs_l.append(torch.full((len(obs[-1]),), leaf))
+    same = torch.cat(inst_l)[:, None] == torch.cat(obs_l)[None]
+    color_d2 = torch.cdist(torch.cat(inst_c), torch.cat(obs_c)).square()
+    affinity = same * torch.exp(-0.5 * color_d2 / 0.1**2)
+    others = random_poses(3, 0.1, generator=torch.Generator().manual_seed(5))
+    poses = torch.cat([pose[None], others])
     pred = compose(poses[:, None], torch.cat(inst)[None])
     o = torch.cat(obs)
     d2 = torch.cdist(pred[..., :3], o[None, :, :3]).square()
