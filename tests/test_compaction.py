@@ -123,6 +123,34 @@ def test_simplify_keeps_the_class_of_every_given_percept_and_drops_features():
     assert bdd.selected_features == sorted(set(features) - set(dropped))
 
 
+def test_simplify_drops_what_reclassifying_every_percept_one_feature_at_a_time_drops():
+    _, bdd = random_splits(20, 40, seed=12)
+    bdd.merge(torch.unique(torch.randint(0, 8, (bdd.n_classes,)), return_inverse=True)[1])
+    for c, f in [(0, 4), (3, 11), (1, 4), (5, 17)]:  # splits after the merge
+        bdd.split(c, f)
+    seen = torch.from_numpy(np.random.default_rng(13).random((80, 20)) < 0.25)
+    allowed = torch.from_numpy(np.random.default_rng(14).random((bdd.n_classes,) * 2) < 0.3)
+    allowed |= torch.eye(bdd.n_classes, dtype=torch.bool)
+    # Brute force: rarest feature first, drop it when classifying every seen percept with it
+    # zeroed (and those dropped before) moves none outside its allowed classes.
+    before, kept, expected = bdd.classify(seen), seen.clone(), []
+    counts = seen.sum(0)
+    for f in sorted(bdd.selected_features, key=lambda f: (int(counts[f]), f)):
+        trial = kept.clone()
+        trial[:, f] = False
+        if allowed[before, bdd.classify(trial)].all():
+            kept, expected = trial, [*expected, f]
+    assert expected and bdd.simplify(seen, allowed) == expected
+    # A dropped feature moves a percept before a later step tests the next feature there:
+    # {0 absent: 0, 0 present: {1 absent: 1, 1 present: 2}}, class 2 may become class 0 only.
+    chain = ClassBDD(2)
+    chain.split(chain.split(0, 0), 1)
+    seen = torch.tensor([[True, True], [False, True], [False, True]])
+    allowed = torch.eye(3, dtype=torch.bool)
+    allowed[2, 0] = True
+    assert chain.simplify(seen, allowed) == [0, 1]
+
+
 def test_bdd_state_dict_round_trip():
     _, bdd = random_splits(25, 50, seed=6)
     bdd.merge(torch.unique(torch.randint(0, 12, (bdd.n_classes,)), return_inverse=True)[1])

@@ -207,18 +207,28 @@ class ClassBDD:
         column = np.full(self.n_features, -1)
         column[tested] = np.arange(len(tested))
         bits = presence.cpu().numpy()[:, tested]
-        classes = self._replay(bits, column)
+        steps = self._compiled(column)
+        # trail[i]: every percept's class before step i. Dropping a feature changes nothing
+        # before the first step that tests it, so each trial replays from there.
+        trail = np.empty((len(steps) + 1, len(bits)), dtype=np.int32)
+        classes = _replay(bits, steps, trail=trail)
+        first_test = np.full(len(tested), len(steps))
+        for i, (columns, _) in reversed(list(enumerate(steps))):
+            if columns is not None:  # a group of splits
+                first_test[columns[columns >= 0]] = i
         allowed = np.eye(self.n_classes, dtype=bool) if allowed is None else allowed.numpy()
         dropped = []
         counts = bits.sum(axis=0)
-        for feature in sorted(self._selected, key=lambda f: counts[column[f]]):
+        for feature in sorted(self._selected, key=lambda f: (counts[column[f]], f)):
             j = column[feature]
             rows = bits[:, j].nonzero()[0]
-            changed = bits[rows]
-            changed[:, j] = False
             # Classifying with the dropped columns zeroed is classifying with the cofactors.
-            if allowed[classes[rows], self._replay(changed, column)].all():
+            start = first_test[j]
+            new_trail = np.empty((len(steps) + 1 - start, len(rows)), dtype=np.int32)
+            moved = _replay(bits, steps, start, trail[start, rows], new_trail, rows, j)
+            if allowed[classes[rows], moved].all():
                 bits[rows, j] = False
+                trail[start:, rows] = new_trail
                 dropped.append(feature)
         if not dropped:
             return dropped
@@ -261,29 +271,27 @@ class ClassBDD:
             raise ValueError(
                 f"presence must be (N, {self.n_features}), got {tuple(presence.shape)}"
             )
-        return torch.as_tensor(self._replay(presence.cpu().numpy()), device=presence.device)
+        steps = self._compiled(np.arange(self.n_features))
+        return torch.as_tensor(_replay(presence.cpu().numpy(), steps), device=presence.device)
 
-    def _replay(self, bits: np.ndarray, column: np.ndarray | None = None) -> np.ndarray:
-        """(N, F) bool -> (N,) class ids, by replaying the history; with ``column``, feature
-        f is read in column ``column[f]`` of ``bits``."""
-        classes, n_classes = np.zeros(len(bits), dtype=np.int64), 1
-        rows = np.arange(len(bits))
+    def _compiled(self, column: np.ndarray) -> list[tuple[np.ndarray | None, np.ndarray]]:
+        """The history as arrays, feature f read in column ``column[f]`` of the presence:
+        a group of splits is (column tested by each class or -1, class it moves to where the
+        feature is present); a merge is (None, group of each class)."""
+        steps, n_classes = [], 1
         for step in self.history:
             if "merge" in step:
-                classes, n_classes = np.asarray(step["merge"])[classes], max(step["merge"]) + 1
+                steps.append((None, np.asarray(step["merge"])))
+                n_classes = max(step["merge"]) + 1
                 continue
             splits = step["splits"]
-            new_classes = [n for _, n in splits.values()]
-            size = max([n_classes, *(n + 1 for n in new_classes), *(c + 1 for c in splits)])
-            feature, target = np.full(size, -1), np.arange(size)
+            size = max([n_classes, *(n + 1 for _, n in splits.values()), *(c + 1 for c in splits)])
+            tested, target = np.full(size, -1), np.arange(size)
             for c, (f, n) in splits.items():
-                feature[c], target[c] = f, n
+                tested[c], target[c] = column[f], n
+            steps.append((tested, target))
             n_classes = size
-            tested = feature[classes]
-            at = np.maximum(tested, 0) if column is None else column[np.maximum(tested, 0)]
-            moves = (tested >= 0) & bits[rows, at]
-            classes = np.where(moves, target[classes], classes)
-        return classes
+        return steps
 
     def state_dict(self) -> dict:
         return {
@@ -333,6 +341,41 @@ class ClassBDD:
                 function = functions.get(c, bdd.false)  # a dropped split's class is empty
                 functions[c], functions[n] = function & ~test, function & test
         return [functions.get(c, bdd.false) for c in range(self.n_classes)]
+
+
+def _replay(
+    bits: np.ndarray,
+    steps: list[tuple[np.ndarray | None, np.ndarray]],
+    start: int = 0,
+    classes: np.ndarray | None = None,
+    trail: np.ndarray | None = None,
+    rows: np.ndarray | None = None,
+    zeroed: int = -1,
+) -> np.ndarray:
+    """(N, T) bool presence -> (N,) class ids, by replaying compiled ``steps`` (see
+    ``ClassBDD._compiled``) from step ``start``, the rows being in ``classes`` there (default:
+    step 0, every row in class 0).
+
+    Args:
+        trail: (len(steps) + 1 - start, n) array whose row i receives the classes before
+            step start + i, and whose last row the result.
+        rows: replay only these rows of ``bits`` (default: all).
+        zeroed: read this column as all False.
+    """
+    rows = np.arange(len(bits)) if rows is None else rows
+    classes = np.zeros(len(rows), dtype=np.int64) if classes is None else classes
+    for i, (tested, target) in enumerate(steps[start:]):
+        if trail is not None:
+            trail[i] = classes
+        if tested is None:
+            classes = target[classes]
+            continue
+        column = tested[classes]
+        moves = (column >= 0) & (column != zeroed) & bits[rows, np.maximum(column, 0)]
+        classes = np.where(moves, target[classes], classes)
+    if trail is not None:
+        trail[-1] = classes
+    return classes
 
 
 __all__ = ["ClassBDD"]
