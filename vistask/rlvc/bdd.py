@@ -43,8 +43,13 @@ except ImportError:  # pragma: no cover - wheels without the CUDD extension
 # CUDD's memory budget: classes that outgrow it leave the BDD (``ClassBDD.in_bdd``) instead of
 # filling the machine's memory, which a merge on place navigation did (24 GB). The default maze
 # peaks at 77 MiB; near the budget every split walks huge functions (the car with compaction:
-# splits took 296 s of a 448 s run at 4 GiB, 87 s of 281 s at 1 GiB, with the same classes).
-MAX_MEMORY = 2**30
+# splits took 296 s of a 448 s run at 4 GiB, 87 s of 281 s at 1 GiB, with the same classes),
+# and a merge that outgrows it fails only once it is full (place navigation, 200,000
+# interactions: 23 s at 1 GiB, 3.4 s at 256 MiB, with the same classes).
+MAX_MEMORY = 2**28
+# Trials of dropping features that ``simplify`` replays together (one replay costs about as
+# much for a few percepts as for thousands).
+BATCH = 32
 
 
 def _name(feature: int) -> str:
@@ -122,7 +127,7 @@ class ClassBDD:
                 raise
             warnings.warn(
                 f"the visual classes outgrew the BDD's memory budget "
-                f"({self.max_memory / 2**30:.1f} GiB) at {self.n_classes} classes: they go on "
+                f"({self.max_memory / 2**20:.0f} MiB) at {self.n_classes} classes: they go on "
                 f"as their history of splits and merges, which classifies as the BDD did ({error})",
                 stacklevel=3,
             )
@@ -206,30 +211,64 @@ class ClassBDD:
         tested = sorted(self._tested_features())
         column = np.full(self.n_features, -1)
         column[tested] = np.arange(len(tested))
-        bits = presence.cpu().numpy()[:, tested]
+        # Column-major, for the trials that read one column each (torch selects 10x faster).
+        bits = presence.cpu().T[tested].numpy().T
         steps = self._compiled(column)
-        # trail[i]: every percept's class before step i. Dropping a feature changes nothing
-        # before the first step that tests it, so each trial replays from there.
+        # trail[i]: every percept's class before step i. Dropping a feature moves only the
+        # percepts that reach a step testing it, and only from there on.
         trail = np.empty((len(steps) + 1, len(bits)), dtype=np.int32)
         classes = _replay(bits, steps, trail=trail)
-        first_test = np.full(len(tested), len(steps))
-        for i, (columns, _) in reversed(list(enumerate(steps))):
+        tests = [[] for _ in tested]  # steps that test each column
+        for i, (columns, _) in enumerate(steps):
             if columns is not None:  # a group of splits
-                first_test[columns[columns >= 0]] = i
+                for j in np.unique(columns[columns >= 0]):
+                    tests[j].append(i)
         allowed = np.eye(self.n_classes, dtype=bool) if allowed is None else allowed.numpy()
+
+        def trial(j: int) -> tuple[np.ndarray, np.ndarray, int]:
+            """The percepts showing column j and, of them, those that reach a step testing
+            it, with the first such step."""
+            present = bits[:, j].nonzero()[0]
+            reach, start = np.zeros(len(present), dtype=bool), len(steps)
+            for i in tests[j]:
+                here = steps[i][0][trail[i, present]] == j
+                if here.any():
+                    reach |= here
+                    start = min(start, i)
+            return present, present[reach], start
+
+        def replay(rows: np.ndarray, zeroed: np.ndarray, start: int) -> np.ndarray:
+            # Classifying with the dropped columns zeroed is classifying with the cofactors.
+            new_trail = np.empty((len(steps) + 1 - start, len(rows)), dtype=np.int32)
+            _replay(bits, steps, start, trail[start, rows], new_trail, rows, zeroed)
+            return new_trail
+
         dropped = []
         counts = bits.sum(axis=0)
-        for feature in sorted(self._selected, key=lambda f: (counts[column[f]], f)):
-            j = column[feature]
-            rows = bits[:, j].nonzero()[0]
-            # Classifying with the dropped columns zeroed is classifying with the cofactors.
-            start = first_test[j]
-            new_trail = np.empty((len(steps) + 1 - start, len(rows)), dtype=np.int32)
-            moved = _replay(bits, steps, start, trail[start, rows], new_trail, rows, j)
-            if allowed[classes[rows], moved].all():
-                bits[rows, j] = False
-                trail[start:, rows] = new_trail
-                dropped.append(feature)
+        order = sorted(self._selected, key=lambda f: (counts[column[f]], f))
+        # Trials run BATCH features at a time in one replay, each as if the features before
+        # it in the batch stayed; a trial is run again alone where a feature dropped before
+        # it in the batch shows in one of its percepts (the drop changed its bits or trail).
+        for batch in (order[k : k + BATCH] for k in range(0, len(order), BATCH)):
+            trials = [trial(column[f]) for f in batch]
+            start = min(t[2] for t in trials)
+            rows = np.concatenate([t[1] for t in trials])
+            zeroed = np.repeat([column[f] for f in batch], [len(t[1]) for t in trials])
+            batch_trail = replay(rows, zeroed, start)
+            ends = np.cumsum([len(t[1]) for t in trials])
+            touched = np.zeros(len(bits), dtype=bool)
+            for feature, (present, rows, first), end in zip(batch, trials, ends, strict=True):
+                j = column[feature]
+                if touched[present].any():
+                    present, rows, first = trial(j)
+                    new_trail = replay(rows, np.full(len(rows), j), first)
+                else:
+                    new_trail = batch_trail[first - start :, end - len(rows) : end]
+                if allowed[classes[rows], new_trail[-1]].all():
+                    bits[present, j] = False
+                    trail[first:, rows] = new_trail
+                    touched[present] = True
+                    dropped.append(feature)
         if not dropped:
             return dropped
         absent = {_name(f): False for f in dropped}
