@@ -207,68 +207,17 @@ class ClassBDD:
         """
         if not self._selected:
             return []
-        # The replay reads only the features that the history tests: a copy of their columns.
+        # The replay reads only the features that the history tests: a copy of their columns,
+        # column-major for the trials that read one column each (torch selects 10x faster).
         tested = sorted(self._tested_features())
         column = np.full(self.n_features, -1)
         column[tested] = np.arange(len(tested))
-        # Column-major, for the trials that read one column each (torch selects 10x faster).
         bits = presence.cpu().T[tested].numpy().T
-        steps = self._compiled(column)
-        # trail[i]: every percept's class before step i. Dropping a feature moves only the
-        # percepts that reach a step testing it, and only from there on.
-        trail = np.empty((len(steps) + 1, len(bits)), dtype=np.int32)
-        classes = _replay(bits, steps, trail=trail)
-        tests = [[] for _ in tested]  # steps that test each column
-        for i, (columns, _) in enumerate(steps):
-            if columns is not None:  # a group of splits
-                for j in np.unique(columns[columns >= 0]):
-                    tests[j].append(i)
-        allowed = np.eye(self.n_classes, dtype=bool) if allowed is None else allowed.numpy()
-
-        def trial(j: int) -> tuple[np.ndarray, np.ndarray, int]:
-            """The percepts showing column j and, of them, those that reach a step testing
-            it, with the first such step."""
-            present = bits[:, j].nonzero()[0]
-            reach, start = np.zeros(len(present), dtype=bool), len(steps)
-            for i in tests[j]:
-                here = steps[i][0][trail[i, present]] == j
-                if here.any():
-                    reach |= here
-                    start = min(start, i)
-            return present, present[reach], start
-
-        def replay(rows: np.ndarray, zeroed: np.ndarray, start: int) -> np.ndarray:
-            # Classifying with the dropped columns zeroed is classifying with the cofactors.
-            new_trail = np.empty((len(steps) + 1 - start, len(rows)), dtype=np.int32)
-            _replay(bits, steps, start, trail[start, rows], new_trail, rows, zeroed)
-            return new_trail
-
-        dropped = []
         counts = bits.sum(axis=0)
         order = sorted(self._selected, key=lambda f: (counts[column[f]], f))
-        # Trials run BATCH features at a time in one replay, each as if the features before
-        # it in the batch stayed; a trial is run again alone where a feature dropped before
-        # it in the batch shows in one of its percepts (the drop changed its bits or trail).
-        for batch in (order[k : k + BATCH] for k in range(0, len(order), BATCH)):
-            trials = [trial(column[f]) for f in batch]
-            start = min(t[2] for t in trials)
-            rows = np.concatenate([t[1] for t in trials])
-            zeroed = np.repeat([column[f] for f in batch], [len(t[1]) for t in trials])
-            batch_trail = replay(rows, zeroed, start)
-            ends = np.cumsum([len(t[1]) for t in trials])
-            touched = np.zeros(len(bits), dtype=bool)
-            for feature, (present, rows, first), end in zip(batch, trials, ends, strict=True):
-                j = column[feature]
-                if touched[present].any():
-                    present, rows, first = trial(j)
-                    new_trail = replay(rows, np.full(len(rows), j), first)
-                else:
-                    new_trail = batch_trail[first - start :, end - len(rows) : end]
-                if allowed[classes[rows], new_trail[-1]].all():
-                    bits[present, j] = False
-                    trail[first:, rows] = new_trail
-                    touched[present] = True
-                    dropped.append(feature)
+        allowed = np.eye(self.n_classes, dtype=bool) if allowed is None else allowed.numpy()
+        dropped = _droppable(bits, self._compiled(column), column[order], allowed)
+        dropped = [tested[j] for j in dropped]
         if not dropped:
             return dropped
         absent = {_name(f): False for f in dropped}
@@ -380,6 +329,70 @@ class ClassBDD:
                 function = functions.get(c, bdd.false)  # a dropped split's class is empty
                 functions[c], functions[n] = function & ~test, function & test
         return [functions.get(c, bdd.false) for c in range(self.n_classes)]
+
+
+def _droppable(
+    bits: np.ndarray,
+    steps: list[tuple[np.ndarray | None, np.ndarray]],
+    candidates: np.ndarray,
+    allowed: np.ndarray,
+) -> list[int]:
+    """The columns of ``candidates``, tried in that order, whose absence moves no row of
+    ``bits`` (N, T) out of its class under ``steps`` (see ``ClassBDD._compiled``), or only
+    into classes ``allowed`` (S, S) for it, the columns dropped before being absent too.
+    ``bits`` is changed: the dropped columns are zeroed."""
+    # trail[i]: every row's class before step i. Dropping a column moves only the rows that
+    # reach a step testing it, and only from there on.
+    trail = np.empty((len(steps) + 1, len(bits)), dtype=np.int32)
+    classes = _replay(bits, steps, trail=trail)
+    tests = [[] for _ in range(bits.shape[1])]  # steps that test each column
+    for i, (columns, _) in enumerate(steps):
+        if columns is not None:  # a group of splits
+            for j in np.unique(columns[columns >= 0]):
+                tests[j].append(i)
+
+    def trial(j: int) -> tuple[np.ndarray, np.ndarray, int]:
+        """The rows showing column j and, of them, those that reach a step testing it, with
+        the first such step."""
+        present = bits[:, j].nonzero()[0]
+        reach, start = np.zeros(len(present), dtype=bool), len(steps)
+        for i in tests[j]:
+            here = steps[i][0][trail[i, present]] == j
+            if here.any():
+                reach |= here
+                start = min(start, i)
+        return present, present[reach], start
+
+    def replay(rows: np.ndarray, zeroed: np.ndarray, start: int) -> np.ndarray:
+        """The trail of ``rows`` from step ``start`` on, with column ``zeroed[r]`` absent from
+        row r (classifying with a column zeroed is classifying with the cofactor)."""
+        new_trail = np.empty((len(steps) + 1 - start, len(rows)), dtype=np.int32)
+        _replay(bits, steps, start, trail[start, rows], new_trail, rows, zeroed)
+        return new_trail
+
+    dropped = []
+    # BATCH trials share one replay, each as if the columns before it in the batch stayed; a
+    # trial runs again alone where a column dropped before it in the batch shows in one of its
+    # rows (the drop changed that row's bits and trail).
+    for batch in (candidates[k : k + BATCH] for k in range(0, len(candidates), BATCH)):
+        trials = [trial(j) for j in batch]
+        start = min(first for _, _, first in trials)
+        sizes = [len(rows) for _, rows, _ in trials]
+        batch_rows = np.concatenate([rows for _, rows, _ in trials])
+        batch_trail = replay(batch_rows, np.repeat(batch, sizes), start)
+        touched = np.zeros(len(bits), dtype=bool)
+        for j, (present, rows, first), end in zip(batch, trials, np.cumsum(sizes), strict=True):
+            if touched[present].any():
+                present, rows, first = trial(j)
+                new_trail = replay(rows, np.full(len(rows), j), first)
+            else:
+                new_trail = batch_trail[first - start :, end - len(rows) : end]
+            if allowed[classes[rows], new_trail[-1]].all():
+                bits[present, j] = False
+                trail[first:, rows] = new_trail
+                touched[present] = True
+                dropped.append(int(j))
+    return dropped
 
 
 def _replay(
