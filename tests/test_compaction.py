@@ -123,12 +123,13 @@ def test_simplify_keeps_the_class_of_every_given_percept_and_drops_features():
     assert bdd.selected_features == sorted(set(features) - set(dropped))
 
 
-def test_simplify_drops_what_reclassifying_every_percept_one_feature_at_a_time_drops():
-    _, bdd = random_splits(20, 40, seed=12)
+@pytest.mark.parametrize("n_features", [20, 100])  # one batch of trials, several
+def test_simplify_drops_what_reclassifying_every_percept_one_feature_at_a_time_drops(n_features):
+    _, bdd = random_splits(n_features, 2 * n_features, seed=12)
     bdd.merge(torch.unique(torch.randint(0, 8, (bdd.n_classes,)), return_inverse=True)[1])
     for c, f in [(0, 4), (3, 11), (1, 4), (5, 17)]:  # splits after the merge
         bdd.split(c, f)
-    seen = torch.from_numpy(np.random.default_rng(13).random((80, 20)) < 0.25)
+    seen = torch.from_numpy(np.random.default_rng(13).random((4 * n_features, n_features)) < 0.25)
     allowed = torch.from_numpy(np.random.default_rng(14).random((bdd.n_classes,) * 2) < 0.3)
     allowed |= torch.eye(bdd.n_classes, dtype=torch.bool)
     # Brute force: rarest feature first, drop it when classifying every seen percept with it
