@@ -402,17 +402,17 @@ def _replay(
     classes: np.ndarray | None = None,
     trail: np.ndarray | None = None,
     rows: np.ndarray | None = None,
-    zeroed: int = -1,
+    zeroed: int | np.ndarray = -1,
 ) -> np.ndarray:
-    """(N, T) bool presence -> (N,) class ids, by replaying compiled ``steps`` (see
+    """(N, T) bool presence -> (n,) class ids of ``rows``, by replaying compiled ``steps`` (see
     ``ClassBDD._compiled``) from step ``start``, the rows being in ``classes`` there (default:
     step 0, every row in class 0).
 
     Args:
         trail: (len(steps) + 1 - start, n) array whose row i receives the classes before
             step start + i, and whose last row the result.
-        rows: replay only these rows of ``bits`` (default: all).
-        zeroed: read this column as all False.
+        rows: replay only these n rows of ``bits`` (default: all N).
+        zeroed: a column read as absent in every row, or (n,) one column for each row.
     """
     rows = np.arange(len(bits)) if rows is None else rows
     classes = np.zeros(len(rows), dtype=np.int64) if classes is None else classes
