@@ -81,7 +81,7 @@ def test_vectorized_bdd_classification_equals_dds_own_evaluation(simplified):
     bdd.merge(groups)  # disjunctions
     if simplified:  # cofactors in the BDD, deleted splits in the replayed history
         seen = torch.from_numpy(np.random.default_rng(8).random((40, 16)) < 0.2)
-        assert bdd.simplify(seen)
+        assert bdd.simplify(seen)[0]
     presence = torch.from_numpy(np.random.default_rng(3).random((300, 16)) < 0.5)
     classes = bdd.classify(presence)
     declared = set(bdd.bdd.vars)
@@ -115,22 +115,29 @@ def test_simplify_keeps_the_class_of_every_given_percept_and_drops_features():
     bdd.merge(torch.unique(torch.randint(0, 6, (bdd.n_classes,)), return_inverse=True)[1])
     seen = torch.from_numpy(np.random.default_rng(10).random((60, 20)) < 0.2)
     before, features = bdd.classify(seen), bdd.selected_features
-    dropped = bdd.simplify(seen)
-    after = bdd.classify(seen)
+    dropped, after = bdd.simplify(seen)
+    assert torch.equal(after, bdd.classify(seen))
     # The same partition of the seen percepts (empty classes are removed, ids renumbered).
     pairs = set(zip(before.tolist(), after.tolist(), strict=True))
     assert dropped and len(pairs) == len(set(before.tolist())) == len(set(after.tolist()))
     assert bdd.selected_features == sorted(set(features) - set(dropped))
 
 
-@pytest.mark.parametrize("n_features", [20, 100])  # one batch of trials, several
-def test_simplify_drops_what_reclassifying_every_percept_one_feature_at_a_time_drops(n_features):
-    _, bdd = random_splits(n_features, 2 * n_features, seed=12)
-    bdd.merge(torch.unique(torch.randint(0, 8, (bdd.n_classes,)), return_inverse=True)[1])
+# One batch of trials; several batches, where a drop early in a batch changes the class of
+# a later trial's percepts (seed 10) or the bits of the percepts it replays (seed 15).
+@pytest.mark.parametrize("n_features, seed", [(20, 12), (100, 12), (100, 10), (100, 15)])
+def test_simplify_drops_what_reclassifying_every_percept_one_feature_at_a_time_drops(
+    n_features, seed
+):
+    rng = np.random.default_rng(seed)
+    _, bdd = random_splits(n_features, 2 * n_features, seed=seed)
+    bdd.merge(
+        torch.from_numpy(np.unique(rng.integers(0, 8, bdd.n_classes), return_inverse=True)[1])
+    )
     for c, f in [(0, 4), (3, 11), (1, 4), (5, 17)]:  # splits after the merge
         bdd.split(c, f)
-    seen = torch.from_numpy(np.random.default_rng(13).random((4 * n_features, n_features)) < 0.25)
-    allowed = torch.from_numpy(np.random.default_rng(14).random((bdd.n_classes,) * 2) < 0.3)
+    seen = torch.from_numpy(rng.random((4 * n_features, n_features)) < 0.25)
+    allowed = torch.from_numpy(rng.random((bdd.n_classes,) * 2) < 0.3)
     allowed |= torch.eye(bdd.n_classes, dtype=torch.bool)
     # Brute force: rarest feature first, drop it when classifying every seen percept with it
     # zeroed (and those dropped before) moves none outside its allowed classes.
@@ -141,7 +148,9 @@ def test_simplify_drops_what_reclassifying_every_percept_one_feature_at_a_time_d
         trial[:, f] = False
         if allowed[before, bdd.classify(trial)].all():
             kept, expected = trial, [*expected, f]
-    assert expected and bdd.simplify(seen, allowed) == expected
+    dropped, classes = bdd.simplify(seen, allowed)
+    assert expected and dropped == expected
+    assert torch.equal(classes, bdd.classify(seen))
     # A dropped feature moves a percept before a later step tests the next feature there:
     # {0 absent: 0, 0 present: {1 absent: 1, 1 present: 2}}, class 2 may become class 0 only.
     chain = ClassBDD(2)
@@ -149,7 +158,8 @@ def test_simplify_drops_what_reclassifying_every_percept_one_feature_at_a_time_d
     seen = torch.tensor([[True, True], [False, True], [False, True]])
     allowed = torch.eye(3, dtype=torch.bool)
     allowed[2, 0] = True
-    assert chain.simplify(seen, allowed) == [0, 1]
+    dropped, classes = chain.simplify(seen, allowed)
+    assert dropped == [0, 1] and chain.n_classes == 1 and classes.tolist() == [0, 0, 0]
 
 
 def test_bdd_state_dict_round_trip():
@@ -251,7 +261,7 @@ def test_classes_that_outgrow_the_bdd_go_on_as_their_history():
     assert torch.equal(classes.classify(presence), equal * (1 + presence[:, 0]))
     assert classes.selected_features == list(range(20))
     seen = presence[~presence[:, 19]]
-    assert classes.simplify(seen) == [19] and classes.selected_features == list(range(19))
+    assert classes.simplify(seen)[0] == [19] and classes.selected_features == list(range(19))
     assert torch.equal(classes.classify(seen), equal[~presence[:, 19]] * (1 + seen[:, 0]))
     loaded = ClassBDD.from_state_dict(classes.state_dict())
     assert not loaded.in_bdd and loaded.history == classes.history
@@ -273,7 +283,7 @@ def test_features_drop_when_their_cofactors_outgrow_the_bdd(monkeypatch):
     classes.split(classes.split(0, 0), 1)  # {0 absent: 0, 0 present: {1 absent: 1, present: 2}}
     seen = torch.tensor([[False, False, True], [True, False, False]])  # feature 1 never present
     with pytest.warns(UserWarning, match="outgrew the BDD's memory budget"):
-        assert classes.simplify(seen) == [1]
+        assert classes.simplify(seen)[0] == [1]
     assert not classes.in_bdd and classes.selected_features == [0]
     assert classes.classify(torch.tensor([[True, True, False]])).tolist() == [1]
 

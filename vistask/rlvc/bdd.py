@@ -192,13 +192,16 @@ class ClassBDD:
         self.history.append({"merge": groups.tolist()})
         self._update_selected()
 
-    def simplify(self, presence: torch.Tensor, allowed: torch.Tensor | None = None) -> list[int]:
+    def simplify(
+        self, presence: torch.Tensor, allowed: torch.Tensor | None = None
+    ) -> tuple[list[int], torch.Tensor]:
         """Drop every feature whose absence moves none of these percepts out of its class, or
         only into classes ``allowed`` for it.
 
         Features are tried from the rarest up; a dropped feature's test is replaced by its
         "absent" branch in every class, and classes left empty are removed (ids renumbered in
-        order). Returns the dropped features.
+        order). Returns the dropped features and the percepts' (N,) long classes afterwards
+        (what ``classify(presence)`` now gives, known without classifying again).
 
         Args:
             presence: (N, F) bool presence of the percepts that must stay where they are.
@@ -206,20 +209,21 @@ class ClassBDD:
                 nowhere else).
         """
         if not self._selected:
-            return []
+            return [], self.classify(presence)
         # The replay reads only the features that the history tests: a copy of their columns,
         # column-major for the trials that read one column each (torch selects 10x faster).
         tested = sorted(self._tested_features())
         column = np.full(self.n_features, -1)
         column[tested] = np.arange(len(tested))
-        bits = presence.cpu().T[tested].numpy().T
+        bits = presence[:, tested].T.contiguous().cpu().numpy().T
         counts = bits.sum(axis=0)
         order = sorted(self._selected, key=lambda f: (counts[column[f]], f))
         allowed = np.eye(self.n_classes, dtype=bool) if allowed is None else allowed.numpy()
-        dropped = _droppable(bits, self._compiled(column), column[order], allowed)
+        dropped, classes = _droppable(bits, self._compiled(column), column[order], allowed)
         dropped = [tested[j] for j in dropped]
+        classes = torch.as_tensor(classes, dtype=torch.long, device=presence.device)
         if not dropped:
-            return dropped
+            return dropped, classes
         absent = {_name(f): False for f in dropped}
 
         def cofactors() -> list:
@@ -235,9 +239,11 @@ class ClassBDD:
             if self.functions is not None:
                 self.functions = [u for u, k in zip(self.functions, kept, strict=True) if k]
             self._n_classes = int(kept.sum())
-            self.history.append({"merge": (kept.cumsum(0) - 1).clamp_min(0).tolist()})
+            renumbered = (kept.cumsum(0) - 1).clamp_min(0)
+            self.history.append({"merge": renumbered.tolist()})
+            classes = renumbered.to(classes.device)[classes]
         self._update_selected()
-        return dropped
+        return dropped, classes
 
     def _non_empty(self) -> torch.Tensor:
         """(S,) bool: classes that some presence vector reaches. In the BDD: functions other
@@ -336,11 +342,12 @@ def _droppable(
     steps: list[tuple[np.ndarray | None, np.ndarray]],
     candidates: np.ndarray,
     allowed: np.ndarray,
-) -> list[int]:
+) -> tuple[list[int], np.ndarray]:
     """The columns of ``candidates``, tried in that order, whose absence moves no row of
     ``bits`` (N, T) out of its class under ``steps`` (see ``ClassBDD._compiled``), or only
-    into classes ``allowed`` (S, S) for it, the columns dropped before being absent too.
-    ``bits`` is changed: the dropped columns are zeroed."""
+    into classes ``allowed`` (S, S) for it, the columns dropped before being absent too; and
+    the (N,) classes of the rows with those columns absent. ``bits`` is changed: the dropped
+    columns are zeroed."""
     # trail[i]: every row's class before step i. Dropping a column moves only the rows that
     # reach a step testing it, and only from there on.
     trail = np.empty((len(steps) + 1, len(bits)), dtype=np.int32)
@@ -371,28 +378,31 @@ def _droppable(
         return new_trail
 
     dropped = []
-    # BATCH trials share one replay, each as if the columns before it in the batch stayed; a
-    # trial runs again alone where a column dropped before it in the batch shows in one of its
-    # rows (the drop changed that row's bits and trail).
+    # BATCH trials share one replay, each as if the columns before it in the batch stayed. A
+    # column dropped before trial j in the batch changed the bits of the rows showing it
+    # ("zeroed") and the trail of some of them ("moved"); j's shared replay still holds unless
+    # a row it replays was zeroed, or a row showing j moved (it may now reach j's tests, or
+    # reach them elsewhere): then j runs again alone.
     for batch in (candidates[k : k + BATCH] for k in range(0, len(candidates), BATCH)):
         trials = [trial(j) for j in batch]
         start = min(first for _, _, first in trials)
         sizes = [len(rows) for _, rows, _ in trials]
         batch_rows = np.concatenate([rows for _, rows, _ in trials])
         batch_trail = replay(batch_rows, np.repeat(batch, sizes), start)
-        touched = np.zeros(len(bits), dtype=bool)
+        zeroed, moved = np.zeros(len(bits), dtype=bool), np.zeros(len(bits), dtype=bool)
         for j, (present, rows, first), end in zip(batch, trials, np.cumsum(sizes), strict=True):
-            if touched[present].any():
+            if zeroed[rows].any() or moved[present].any():
                 present, rows, first = trial(j)
                 new_trail = replay(rows, np.full(len(rows), j), first)
             else:
                 new_trail = batch_trail[first - start :, end - len(rows) : end]
             if allowed[classes[rows], new_trail[-1]].all():
                 bits[present, j] = False
+                moved[rows[(new_trail != trail[first:, rows]).any(axis=0)]] = True
                 trail[first:, rows] = new_trail
-                touched[present] = True
+                zeroed[present] = True
                 dropped.append(int(j))
-    return dropped
+    return dropped, trail[-1]
 
 
 def _replay(
@@ -415,16 +425,19 @@ def _replay(
         zeroed: a column read as absent in every row, or (n,) one column for each row.
     """
     rows = np.arange(len(bits)) if rows is None else rows
-    classes = np.zeros(len(rows), dtype=np.int64) if classes is None else classes
+    classes = np.zeros(len(rows), dtype=np.int64) if classes is None else classes.copy()
+    zeroed = np.broadcast_to(zeroed, len(rows))
     for i, (tested, target) in enumerate(steps[start:]):
         if trail is not None:
             trail[i] = classes
         if tested is None:
             classes = target[classes]
             continue
-        column = tested[classes]
-        moves = (column >= 0) & (column != zeroed) & bits[rows, np.maximum(column, 0)]
-        classes = np.where(moves, target[classes], classes)
+        # A group of splits reads only the rows of the classes it splits.
+        at = np.flatnonzero(tested[classes] >= 0)
+        column = tested[classes[at]]
+        at = at[(column != zeroed[at]) & bits[rows[at], column]]
+        classes[at] = target[classes[at]]
     if trail is not None:
         trail[-1] = classes
     return classes

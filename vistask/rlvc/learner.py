@@ -319,10 +319,9 @@ class RLVC:
         # A feature whose absence only moves percepts between interchangeable merged classes
         # is not needed either.
         allowed = interchangeable(self.solve(db, classes), tolerance)
-        self.structure.simplify(db.presence, allowed)
+        _, classes = self.structure.simplify(db.presence, allowed)
         self._splits_since_compaction = 0
         self._no_compound.clear()  # class ids changed
-        classes = self.structure.classify(db.presence)
         q = self.solve(db, classes)
         self.timing.compaction += time.perf_counter() - start
         return classes, q, before - self.n_classes
