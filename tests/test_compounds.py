@@ -72,24 +72,28 @@ def test_a_compound_of_a_compound_occurs_at_its_parts_midpoint():
     assert moved.presence(5)[0].tolist() == [True, True, True, True, False]
 
 
-def relation_database(n=600, seed=0) -> InteractionDatabase:
+def relation_database(n=600, seed=0, word_agrees=None) -> InteractionDatabase:
     """One-step episodes whose reward is 1 when feature 1 lies 5 scales right of feature 0,
-    and 0 when it lies anywhere else; every percept shows features 0-5 once."""
+    and 0 when it lies anywhere else; every percept shows features 0-5 once. With
+    ``word_agrees``, a word (feature 6) shows where the relation holds, in that share of the
+    percepts, and where it does not, in the others."""
     rng = np.random.default_rng(seed)
     related = rng.random(n) < 0.5
     xy = rng.uniform(0, 100, (n, 6, 2))
     xy[related, 1] = xy[related, 0] + [10.0, 0.0]  # scale 2: 5 scales right
     near = ~related & (np.linalg.norm(xy[:, 1] - xy[:, 0] - [10.0, 0.0], axis=1) < 8)
     xy[near, 1] = xy[near, 0] - [30.0, 30.0]  # unrelated percepts: far from the relation
-    occ = Occurrences(
-        np.repeat(np.arange(n + 1), [6] * n + [0]),
-        np.tile(np.arange(6), n),
-        xy.reshape(-1, 2),
-        np.full(6 * n, 2.0),
-        n + 1,  # the last percept is the terminal view
-    )
+    image, feature = np.repeat(np.arange(n), 6), np.tile(np.arange(6), n)
+    xy = xy.reshape(-1, 2)
+    if word_agrees is not None:
+        word = np.flatnonzero(related == (rng.random(n) < word_agrees))
+        image, feature = np.r_[image, word], np.r_[feature, np.full(len(word), 6)]
+        xy = np.r_[xy, rng.uniform(0, 100, (len(word), 2))]
+        order = np.argsort(image, kind="stable")
+        image, feature, xy = image[order], feature[order], xy[order]
+    occ = Occurrences(image, feature, xy, np.full(len(image), 2.0), n + 1)  # n: the end
     return InteractionDatabase(
-        presence=occ.presence(6),
+        presence=occ.presence(6 if word_agrees is None else 7),
         obs=torch.arange(n),
         actions=torch.zeros(n, dtype=torch.long),
         rewards=torch.from_numpy(related.astype(float)),
@@ -111,6 +115,15 @@ def test_only_a_compound_splits_a_reward_that_depends_on_a_relation():
     classes = rlvc.structure.classify(db.presence)[db.obs]
     values = rlvc.values()[classes].numpy()
     assert np.allclose(values, db.rewards.numpy(), atol=1e-9)  # each percept's true value
+
+
+@pytest.mark.parametrize("word_agrees", [0.8, 1.0])
+def test_a_compound_splits_a_class_that_a_word_splits_too_only_where_it_does_better(word_agrees):
+    db = relation_database(word_agrees=word_agrees)  # the word: right in 80% or all percepts
+    rlvc = RLVC(db.n_features, 1, gamma=0.9, use_compounds=True)
+    rlvc.learn(db, max_stages=1, progress=False)
+    assert rlvc.structure.selected_features == ([7] if word_agrees < 1 else [6])
+    assert len(rlvc.compounds) == (1 if word_agrees < 1 else 0)
 
 
 def test_propose_keeps_only_relations_that_could_split():

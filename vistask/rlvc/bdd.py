@@ -211,7 +211,8 @@ class ClassBDD:
         if not self._selected:
             return [], self.classify(presence)
         # The replay reads only the features that the history tests: a copy of their columns,
-        # column-major for the trials that read one column each (torch selects 10x faster).
+        # column-major for the trials that read one column each (torch selects them row-major,
+        # then transposes: 2.5x faster than selecting rows of the transpose).
         tested = sorted(self._tested_features())
         column = np.full(self.n_features, -1)
         column[tested] = np.arange(len(tested))
@@ -379,19 +380,19 @@ def _droppable(
 
     dropped = []
     # BATCH trials share one replay, each as if the columns before it in the batch stayed. A
-    # column dropped before trial j in the batch changed the bits of the rows showing it
-    # ("zeroed") and the trail of some of them ("moved"); j's shared replay still holds unless
-    # a row it replays was zeroed, or a row showing j moved (it may now reach j's tests, or
-    # reach them elsewhere): then j runs again alone.
+    # column dropped before trial j in the batch cleared the bits of the rows showing it
+    # ("cleared") and changed the trail of some of them ("moved"); j's shared replay still
+    # holds unless a row it replays was cleared, or a row showing j moved (it may now reach
+    # j's tests, or reach them elsewhere): then j runs again alone.
     for batch in (candidates[k : k + BATCH] for k in range(0, len(candidates), BATCH)):
         trials = [trial(j) for j in batch]
         start = min(first for _, _, first in trials)
         sizes = [len(rows) for _, rows, _ in trials]
         batch_rows = np.concatenate([rows for _, rows, _ in trials])
         batch_trail = replay(batch_rows, np.repeat(batch, sizes), start)
-        zeroed, moved = np.zeros(len(bits), dtype=bool), np.zeros(len(bits), dtype=bool)
+        cleared, moved = np.zeros(len(bits), dtype=bool), np.zeros(len(bits), dtype=bool)
         for j, (present, rows, first), end in zip(batch, trials, np.cumsum(sizes), strict=True):
-            if zeroed[rows].any() or moved[present].any():
+            if cleared[rows].any() or moved[present].any():
                 present, rows, first = trial(j)
                 new_trail = replay(rows, np.full(len(rows), j), first)
             else:
@@ -400,7 +401,7 @@ def _droppable(
                 bits[present, j] = False
                 moved[rows[(new_trail != trail[first:, rows]).any(axis=0)]] = True
                 trail[first:, rows] = new_trail
-                zeroed[present] = True
+                cleared[present] = True
                 dropped.append(int(j))
     return dropped, trail[-1]
 

@@ -1,14 +1,16 @@
-"""Compound splits (paper section 2.5.1): new features for aliased classes that no feature splits.
+"""Compound splits (paper section 2.5.1): new features where they split an aliased class best.
 
-At every stage, the classes that no feature splits significantly, largest TD-error variance
-first, are searched again with candidate compounds made from their own percepts: pairs of parts
-(coarse groups of words, or compounds) that recur in a stable relative position
-(``vistask.features.propose``). The candidates are scored
-as primitive features are (``find_splits``: variance reduction and Welch's t-test), at the
-significance level divided by the number of candidates (Bonferroni): hundreds of candidates are
-made for each class from the very TD errors they are tested on, and without the correction
-chance relations pass (measured on the maze: lower returns with uncorrected compounds). The
-best significant candidate of each class becomes a new feature.
+At every stage, the most aliased classes (largest TD-error variance first) are searched with
+candidate compounds made from their own percepts: pairs of parts (coarse groups of words, or
+compounds) that recur in a stable relative position (``vistask.features.propose``). The
+candidates are scored as primitive features are (``find_splits``: variance reduction and
+Welch's t-test), at the significance level divided by the number of candidates (Bonferroni):
+hundreds of candidates are made for each class from the very TD errors they are tested on, and
+without the correction chance relations pass (measured on the maze: lower returns with
+uncorrected compounds). The best significant candidate of a class becomes a new feature where
+it reduces the variance more than the class's primitive split, if it has one: a class that a
+word splits is searched too, so that a relation that reads the state (a gauge's needle) is
+not put off until words have cut the class into pieces too small to show it.
 """
 
 from __future__ import annotations
@@ -59,10 +61,11 @@ def find_compound_splits(
     max_classes: int = 8,
     max_candidates: int = 512,
     skip: set[int] | frozenset = frozenset(),
+    to_beat: Sequence[Split] = (),
 ) -> tuple[list[tuple[Split, Compound]], list[int]]:
     """The best significant compound split of each of the ``max_classes`` most aliased classes
-    that are not in ``skip`` (classes that a feature splits already, or that the learner
-    searched in vain since they last changed).
+    that are not in ``skip`` (classes that the learner searched in vain since they last
+    changed), where it reduces the variance more than the class's split in ``to_beat``.
 
     Args:
         db: database with feature occurrences (``db.occurrences``).
@@ -76,6 +79,8 @@ def find_compound_splits(
         max_classes: classes searched, by decreasing TD-error variance.
         max_candidates: candidate compounds scored per class and tolerance, most frequent
             first.
+        to_beat: primitive splits of some classes (``find_splits``), the reductions that
+            their compound splits must exceed.
 
     Returns:
         (split, compound) pairs (``split.feature`` is -1 until the compound gets a feature
@@ -84,6 +89,7 @@ def find_compound_splits(
     if db.occurrences is None:
         raise ValueError("compound splits need a database that keeps feature occurrences")
     found = []
+    best = {split.state: split.reduction for split in to_beat}
     ranked = aliased_classes(states, db.actions, deltas, n_states, n_actions, min_count)
     searched = [state for state in ranked.tolist() if state not in skip][:max_classes]
     for state in searched:
@@ -107,8 +113,8 @@ def find_compound_splits(
             alpha / len(candidates),
             min_count,
         )
-        if splits:
-            best = splits[0]
-            split = Split(state, -1, best.action, best.reduction, best.p_value)
-            found.append((split, candidates[best.feature]))
+        if splits and splits[0].reduction > best.get(state, 0.0):
+            top = splits[0]
+            split = Split(state, -1, top.action, top.reduction, top.p_value)
+            found.append((split, candidates[top.feature]))
     return found, searched

@@ -2,7 +2,7 @@
 
 The stage loop, top to bottom: map interactions to classes, solve Q on the estimated class MDP,
 compute TD errors, find the significant split of every aliased class (with ``use_compounds``,
-compound features for the most aliased classes that no feature splits, section 2.5.1), split,
+compound features for the most aliased classes where they split better, section 2.5.1), split,
 repeat until no class splits or the stage cap. With ``compaction``, the classes are a BDD and
 interchangeable classes merge when learning stops (section 2.5.2), and with ``compact_every``
 also every so many stages, learning going on from the merged classes. The policy acts on Q
@@ -85,10 +85,10 @@ class RLVC:
         gamma: discount factor.
         alpha: significance level of the split t-tests.
         min_count: minimum interactions on each side of a split.
-        use_compounds: at every stage, search compound features for the most aliased classes
-            that no feature splits significantly (the database must keep feature
-            occurrences); each compound found becomes feature ``n_features``, which then
-            grows.
+        use_compounds: at every stage, search compound features for the most aliased
+            classes, which split on a compound where it reduces the TD errors' variance more
+            than their best feature (the database must keep feature occurrences); each
+            compound found becomes feature ``n_features``, which then grows.
         compound_tolerances: tolerances of candidate compounds, in units of keypoint scale.
         compaction: hold the classes in a BDD (``ClassBDD``) and merge interchangeable
             classes when learning stops, and split classes on features they already test
@@ -241,10 +241,10 @@ class RLVC:
             )
             if self.use_compounds:
                 compound_start = time.perf_counter()
-                split_already = {split.state for split in splits}
-                made = self._compound_splits(db, s, deltas, split_already | self._no_compound)
+                made = self._compound_splits(db, s, deltas, splits)
                 if made:
-                    splits += made
+                    won = {split.state for split in made}
+                    splits = [split for split in splits if split.state not in won] + made
                     rows, features = db.interaction_features()
                 self.timing.compounds += time.perf_counter() - compound_start
             for split in splits:
@@ -331,10 +331,11 @@ class RLVC:
         db: InteractionDatabase,
         states: torch.Tensor,
         deltas: torch.Tensor,
-        skip: set[int],
+        primitive: list[Split],
     ) -> list[Split]:
-        """Significant compound splits of the most aliased classes not in ``skip``; their
-        compounds join the features (of this learner, its tree and ``db``)."""
+        """Significant compound splits of the most aliased classes, where they do better than
+        the classes' ``primitive`` splits; their compounds join the features (of this learner,
+        its tree and ``db``)."""
         found, searched = find_compound_splits(
             db,
             states,
@@ -344,7 +345,8 @@ class RLVC:
             self.alpha,
             self.min_count,
             self.compound_tolerances,
-            skip=skip,
+            skip=self._no_compound,
+            to_beat=primitive,
         )
         self._no_compound.update(set(searched) - {split.state for split, _ in found})
         new: dict[Compound, int] = {}  # two classes may pick the same compound
