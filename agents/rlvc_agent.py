@@ -60,7 +60,7 @@ class RLVCAgent(VisualAgent):
             from 2-4% to 1-2% and the mean return rose from 0.84 to 0.88 of the oracle's.
         compounds: make compound features (pairs of parts, coarse groups of words or
             compounds, in a stable spatial relation) for the most aliased classes, taken
-            where they split better than any word. Off by default: on the maze they leave
+            where they split better than the class's word split. Off by default: on the maze they leave
             the mean return as it is (0.942 of the oracle's against 0.939, seeds 0-4) at 3.4
             times the run time; where a relation carries the state (a gauge's needle), they
             are what reads it.

@@ -89,7 +89,7 @@ def find_compound_splits(
     if db.occurrences is None:
         raise ValueError("compound splits need a database that keeps feature occurrences")
     found = []
-    best = {split.state: split.reduction for split in to_beat}
+    primitive = {split.state: split.reduction for split in to_beat}
     ranked = aliased_classes(states, db.actions, deltas, n_states, n_actions, min_count)
     searched = [state for state in ranked.tolist() if state not in skip][:max_classes]
     for state in searched:
@@ -113,7 +113,7 @@ def find_compound_splits(
             alpha / len(candidates),
             min_count,
         )
-        if splits and splits[0].reduction > best.get(state, 0.0):
+        if splits and splits[0].reduction > primitive.get(state, 0.0):
             top = splits[0]
             split = Split(state, -1, top.action, top.reduction, top.p_value)
             found.append((split, candidates[top.feature]))

@@ -87,7 +87,7 @@ class RLVC:
         min_count: minimum interactions on each side of a split.
         use_compounds: at every stage, search compound features for the most aliased
             classes, which split on a compound where it reduces the TD errors' variance more
-            than their best feature (the database must keep feature occurrences); each
+            than their split on a feature (the database must keep feature occurrences); each
             compound found becomes feature ``n_features``, which then grows.
         compound_tolerances: tolerances of candidate compounds, in units of keypoint scale.
         compaction: hold the classes in a BDD (``ClassBDD``) and merge interchangeable
