@@ -60,10 +60,10 @@ class RLVCAgent(VisualAgent):
             from 2-4% to 1-2% and the mean return rose from 0.84 to 0.88 of the oracle's.
         compounds: make compound features (pairs of parts, coarse groups of words or
             compounds, in a stable spatial relation) for the most aliased classes, taken
-            where they split better than the class's word split. Off by default: on the maze they leave
-            the mean return as it is (0.942 of the oracle's against 0.939, seeds 0-4) at 3.4
-            times the run time; where a relation carries the state (a gauge's needle), they
-            are what reads it.
+            where they split better than the class's word split. Off by default: on the maze
+            they leave the mean return as it is (0.942 of the oracle's against 0.939, seeds
+            0-4) at 3.4 times the run time; where a relation carries the state (a gauge's
+            needle), they are what reads it.
         compaction: hold the classes in a BDD; when the stages of a database end, merge
             classes with close values and interchangeable greedy actions, then drop the
             features that no percept seen needs; splits take a feature the classes already
