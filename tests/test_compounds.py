@@ -126,6 +126,35 @@ def test_a_compound_splits_a_class_that_a_word_splits_too_only_where_it_does_bet
     assert len(rlvc.compounds) == (1 if word_agrees < 1 else 0)
 
 
+def brute_force_proposals(occ: Occurrences, tolerance: float, min_count: int) -> list:
+    """(first, second, offset) of every bin seen in min_count to n_images - min_count images,
+    by decreasing image count, then by (first, second, cell)."""
+    images, displacements = {}, {}
+    for i in range(len(occ)):
+        for j in range(len(occ)):
+            if i == j or occ.image[i] != occ.image[j]:
+                continue
+            d = (occ.xy[j] - occ.xy[i]) / occ.scale[i]
+            cell = tuple(np.floor(d / tolerance + 0.5).astype(int))
+            b = (int(occ.part[i]), int(occ.part[j]), cell)
+            images.setdefault(b, set()).add(int(occ.image[i]))
+            displacements.setdefault(b, []).append(d)
+    bins = [b for b, ims in images.items() if min_count <= len(ims) <= occ.n_images - min_count]
+    bins.sort(key=lambda b: (-len(images[b]), b))
+    return [(b[0], b[1], np.mean(displacements[b], axis=0)) for b in bins]
+
+
+def test_propose_counts_the_images_of_every_relation_as_brute_force_does():
+    rng = np.random.default_rng(3)
+    for _ in range(5):
+        occ = random_occurrences(rng, n_images=30, n_features=3, per_image=6)
+        for tolerance in (2.0, 4.0):
+            got = propose(occ, tolerances=(tolerance,), min_count=2)
+            expected = brute_force_proposals(occ, tolerance, min_count=2)
+            assert got and [(c.first, c.second) for c in got] == [e[:2] for e in expected]
+            assert np.allclose([c.offset for c in got], [e[2] for e in expected], atol=1e-4)
+
+
 def test_propose_keeps_only_relations_that_could_split():
     db = relation_database(n=200)
     candidates = propose(db.occurrences, tolerances=(1.0,), min_count=10)

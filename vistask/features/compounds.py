@@ -247,15 +247,17 @@ def propose(
         near = (np.abs(cell) < reach).all(1)
         span = 2 * int(np.ceil(reach)) + 1
         key = (pair_key[near] * span + cell[near, 0] + span // 2) * span + cell[near, 1] + span // 2
-        # Distinct images per bin: sort by (bin, image) and count the changes of image.
-        image = occ.image[i[near]]
-        order = np.lexsort((image, key))
-        key, image, dn = key[order], image[order], d[near][order]
-        new_image = np.ones(len(key), bool)
-        new_image[1:] = (key[1:] != key[:-1]) | (image[1:] != image[:-1])
-        bins, start, size = np.unique(key, return_index=True, return_counts=True)
-        if len(bins) == 0:
+        if not near.any():
             continue
+        # Distinct images per bin: sort by (bin, image) and count the changes of image. The
+        # pairs come in image order, so a stable sort by bin is that sort (2x lexsort's speed).
+        image = occ.image[i[near]]
+        order = np.argsort(key, kind="stable")
+        key, image, dn = key[order], image[order], d[near][order]
+        new_bin = np.r_[True, key[1:] != key[:-1]]
+        new_image = new_bin | np.r_[True, image[1:] != image[:-1]]
+        start = np.flatnonzero(new_bin)
+        bins, size = key[start], np.diff(np.r_[start, len(key)])
         images = np.add.reduceat(new_image.astype(np.int64), start)
         ok = (images >= min_count) & (images <= occ.n_images - min_count)
         ranked = np.flatnonzero(ok)[np.argsort(-images[ok], kind="stable")][:max_candidates]
