@@ -232,11 +232,30 @@ def test_reachability_filter() -> None:
     low = _pose([0.0, 0.0, 0.79], [math.pi, 0.0, 0.0])  # below the table top
     far = _pose([0.6, 0.0, 0.85], [math.pi, 0.0, 0.0])  # out of reach
     back = _pose([0.0, 0.0, 0.85], [0.0, -math.pi / 2, 0.0])  # approach towards the base
-    ok = reachable(torch.stack([down, up, low, far, back]), ws)
-    assert ok.tolist() == [True, False, False, False, False]
+    out = _pose([0.0, 0.0, 0.85], [0.0, 3 * math.pi / 4, 0.0])  # 45 degrees down, outwards
+    ok = reachable(torch.stack([down, up, low, far, back, out]), ws)
+    assert ok.tolist() == [True, False, False, False, False, True]
+    folded = reachable(
+        out[None], Workspace(floor_z=0.8, base=(-0.56, 0.0, 0.9), max_approach_out=0.5)
+    )
+    assert not folded.any()
     density = SE3KDE(torch.stack([down, up]), sigma_t=0.001, sigma_r=0.01)
     _, world, found = draw_reachable(density, identity_poses(8), ws, _gen(12))
     assert found.all() and reachable(world, ws).all()
+
+
+def test_a_reachable_grasp_is_found_where_one_draw_in_a_hundred_is_reachable() -> None:
+    ws = Workspace(floor_z=0.8, base=(-0.56, 0.0, 0.9))
+    down = _pose([0.0, 0.0, 0.05], [math.pi, 0.0, 0.0])  # from above: reachable
+    up = _pose([0.0, 0.0, 0.05], [0.0, 0.0, 0.0])  # from below the table: never
+    density = SE3KDE(torch.stack([down] + [up] * 99), sigma_t=0.001, sigma_r=0.01)
+    poses = make_poses(torch.tensor([[0.0, 0.0, 0.85]]).expand(40, 3), identity_poses(40)[:, 3:])
+    local, world, found = draw_reachable(density, poses, ws, _gen(14))
+    assert found.all() and reachable(world, ws).all()
+    torch.testing.assert_close(local[:, :3], down[:3].expand(40, 3), atol=0.01, rtol=0.0)
+    assert ((local[:, 3:] * down[3:]).sum(-1).abs() > 0.99).all()  # q and -q: one rotation
+    _, _, found = draw_reachable(density, poses, ws, _gen(14), max_draws=1)
+    assert found.sum() < 5  # one draw each finds about one in a hundred
 
 
 def test_trials_fall_back_on_the_hypothesis_where_the_density_reaches_nothing() -> None:

@@ -73,6 +73,8 @@ class Workspace:
             from below).
         max_approach_back: largest horizontal component of the approach direction pointing
             back at the base (the arm cannot reach around the object).
+        max_approach_out: largest horizontal component of the approach direction pointing
+            away from the base (the hand cannot fold back between the base and the object).
         pregrasp_distance: back-off along the approach axis before the approach (metres).
         clearance: margin above the floor (metres).
     """
@@ -82,6 +84,7 @@ class Workspace:
     reach: tuple[float, float] = (0.3, 0.85)
     max_approach_up: float = 0.2
     max_approach_back: float = 0.5
+    max_approach_out: float = 1.0
     pregrasp_distance: float = 0.08
     clearance: float = 0.005
 
@@ -99,14 +102,15 @@ def reachable(grasps: torch.Tensor, workspace: Workspace) -> torch.Tensor:
     pre = t - workspace.pregrasp_distance * z
     dist = (t - base).norm(dim=-1)
     outward = torch.nn.functional.normalize((t - base)[:, :2], dim=-1)
-    back = -(z[:, :2] * outward).sum(-1)
+    out = (z[:, :2] * outward).sum(-1)
     return (
         (t[:, 2] >= workspace.floor_z + workspace.clearance)
         & (pre[:, 2] >= workspace.floor_z + 2 * workspace.clearance)
         & (dist >= workspace.reach[0])
         & (dist <= workspace.reach[1])
         & (z[:, 2] <= workspace.max_approach_up)
-        & (back <= workspace.max_approach_back)
+        & (-out <= workspace.max_approach_back)
+        & (out <= workspace.max_approach_out)
     )
 
 
@@ -115,23 +119,25 @@ def draw_reachable(
     object_poses: torch.Tensor,
     workspace: Workspace | None = None,
     generator: torch.Generator | None = None,
-    max_tries: int = 50,
+    max_draws: int = 4096,
     candidates: int = 1,
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """One reachable grasp per object pose, drawn from an object-frame density.
 
-    Draws are repeated (up to ``max_tries`` rounds) for the objects whose grasp is not
-    reachable; objects left without one keep their last draw. With ``candidates`` > 1,
-    that many reachable grasps are drawn per object and the one where the density is
-    highest is kept: the usual way to *use* a grasp density (pick a likely grasp among the
-    feasible ones) rather than to explore it.
+    Each object gets the first reachable grasp among ``max_draws`` draws: a draw from the
+    density restricted to the reachable grasps. Objects left without one keep their first
+    draw. The bottle's hypothesis density reaches 1.7% of its draws in every placement, so
+    50 draws found none in about 4 placements of 10. With ``candidates`` > 1, that many
+    reachable grasps are drawn per object and the one where the density is highest is kept:
+    the usual way to *use* a grasp density (pick a likely grasp among the feasible ones)
+    rather than to explore it.
 
     Args:
         density: object-frame grasp density.
         object_poses: (B, 7) world poses of the objects.
         workspace: reachability filter (None: everything is reachable).
         generator: random generator on the density's device.
-        max_tries: rounds of redrawing.
+        max_draws: draws per object and candidate at most.
         candidates: reachable draws per object to choose from (1: plain sampling).
 
     Returns:
@@ -141,7 +147,7 @@ def draw_reachable(
         raise ValueError(f"candidates must be >= 1, got {candidates}")
     object_poses = check_poses(object_poses, "object_poses", batched=True).to(density.points)
     draws = [
-        _draw_reachable_once(density, object_poses, workspace, generator, max_tries)
+        _draw_reachable_once(density, object_poses, workspace, generator, max_draws)
         for _ in range(candidates)
     ]
     if candidates == 1:
@@ -159,20 +165,18 @@ def _draw_reachable_once(
     object_poses: torch.Tensor,
     workspace: Workspace | None,
     generator: torch.Generator | None,
-    max_tries: int,
+    max_draws: int,
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     B = len(object_poses)
-    local = density.sample(B, generator)
-    world = compose(object_poses, local)
-    ok = torch.ones(B, dtype=torch.bool) if workspace is None else reachable(world, workspace)
-    for _ in range(max_tries - 1):
-        if ok.all():
-            break
-        redo = (~ok).nonzero(as_tuple=True)[0]
-        local[redo] = density.sample(len(redo), generator)
-        world[redo] = compose(object_poses[redo], local[redo])
-        ok[redo] = reachable(world[redo], workspace)
-    return local, world, ok
+    if workspace is None:
+        local = density.sample(B, generator)
+        return local, compose(object_poses, local), torch.ones(B, dtype=torch.bool)
+    local = density.sample(max_draws * B, generator)
+    world = compose(object_poses.repeat(max_draws, 1), local)
+    hit = reachable(world, workspace).view(max_draws, B)
+    first = hit.to(torch.uint8).argmax(dim=0)  # the first reachable draw, else the first
+    pick = first * B + torch.arange(B)
+    return local[pick], world[pick], hit[first, torch.arange(B)]
 
 
 def importance_weights(q: torch.Tensor, c: float) -> torch.Tensor:
