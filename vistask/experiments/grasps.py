@@ -478,7 +478,8 @@ def success_figure(objects: dict[str, dict[str, Any]], path: Path) -> None:
     ax.set_xticks(x, names)
     ax.set_ylim(0, 1)
     ax.set_ylabel("success on held-out placements")
-    ax.legend(fontsize=7, ncol=2, loc="upper left")
+    # Above the axes: bars near 1 leave no room inside.
+    ax.legend(fontsize=7, ncol=len(keys), loc="lower center", bbox_to_anchor=(0.5, 1.0))
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)
