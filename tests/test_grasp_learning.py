@@ -333,6 +333,8 @@ def test_best_of_k_draws_pick_the_likelier_grasps() -> None:
     assert near_heavy(best) > near_heavy(plain) + 0.15
     with pytest.raises(ValueError, match="candidates"):
         draw_reachable(density, identity_poses(2), None, _gen(13), candidates=0)
+    with pytest.raises(ValueError, match="max_draws"):
+        draw_reachable(density, identity_poses(2), None, _gen(13), max_draws=0)
 
 
 def test_pooled_cycles_are_weighted_by_the_mixture_of_their_proposals() -> None:

@@ -42,6 +42,7 @@ from typing import Any, Protocol
 import roma
 import torch
 
+from vistask.checks import check_at_least
 from vistask.saving import load_state, save_state
 from vistask.se3 import SE3KDE, check_poses, compose
 
@@ -143,8 +144,7 @@ def draw_reachable(
     Returns:
         (B, 7) object-frame grasps, (B, 7) world grasps, (B,) bool reachable.
     """
-    if candidates < 1:
-        raise ValueError(f"candidates must be >= 1, got {candidates}")
+    check_at_least(1, candidates=candidates, max_draws=max_draws)
     object_poses = check_poses(object_poses, "object_poses", batched=True).to(density.points)
     draws = [
         _draw_reachable_once(density, object_poses, workspace, generator, max_draws)
@@ -173,10 +173,10 @@ def _draw_reachable_once(
         return local, compose(object_poses, local), torch.ones(B, dtype=torch.bool)
     local = density.sample(max_draws * B, generator)
     world = compose(object_poses.repeat(max_draws, 1), local)
-    hit = reachable(world, workspace).view(max_draws, B)
-    first = hit.to(torch.uint8).argmax(dim=0)  # the first reachable draw, else the first
+    hit = reachable(world, workspace)
+    first = hit.view(max_draws, B).to(torch.uint8).argmax(dim=0)  # else the first draw
     pick = first * B + torch.arange(B)
-    return local[pick], world[pick], hit[first, torch.arange(B)]
+    return local[pick], world[pick], hit[pick]
 
 
 def importance_weights(q: torch.Tensor, c: float) -> torch.Tensor:
