@@ -517,7 +517,7 @@ def run_trials(
         n_trials: number of trials.
         seeds: placement seeds, at least ``n_trials``.
         workspace: reachability filter (unreachable draws are redrawn; if none is found
-            the last draw is executed and normally fails).
+            the first draw is executed and normally fails).
         generator: random generator for drawing grasps.
         progress: called with the number of trials finished after each batch.
         candidates: see ``draw_reachable`` (1: plain samples).
