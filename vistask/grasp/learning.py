@@ -175,7 +175,7 @@ def _draw_reachable_once(
     world = compose(object_poses.repeat(max_draws, 1), local)
     hit = reachable(world, workspace)
     first = hit.view(max_draws, B).to(torch.uint8).argmax(dim=0)  # else the first draw
-    pick = first * B + torch.arange(B)
+    pick = first * B + torch.arange(B, device=first.device)
     return local[pick], world[pick], hit[pick]
 
 
