@@ -174,7 +174,11 @@ class GraspTrialEnv(gym.Env):
         lift_height: how far the gripper lifts after closing (metres).
         lift_threshold: minimum object rise for success (metres).
         reach_tolerance: (metres, radians) pre-grasp error beyond which the trial stops as
-            unreachable.
+            unreachable; within it the approach goes on and the grasp decides. Most arms
+            that miss the pre-grasp pose stop 2-4 cm short of it, and about half of such
+            grasps still lift the object: with 2 cm and 0.2 rad, 10-14 trials of 200 an
+            object stopped as unreachable, and learned densities succeeded 0.03-0.05 less
+            often than with the default (box, bottle, can).
     """
 
     metadata: ClassVar[dict[str, Any]] = {"render_modes": ["rgb_array"], "render_fps": 20}
@@ -202,7 +206,7 @@ class GraspTrialEnv(gym.Env):
         pregrasp_distance: float = 0.08,
         lift_height: float = 0.12,
         lift_threshold: float = 0.05,
-        reach_tolerance: tuple[float, float] = (0.02, 0.2),
+        reach_tolerance: tuple[float, float] = (0.05, 0.4),
         render_mode: str | None = None,
     ) -> None:
         target = object_spec(object_kind)

@@ -123,6 +123,15 @@ def test_local_success_rates_match_brute_force() -> None:
     expected = ((K[:, success] * wn[success]).sum(1) + 2 * overall) / ((K * wn).sum(1) + 2)
     torch.testing.assert_close(rates, expected, rtol=1e-4, atol=1e-5)
     assert len(rates) == int(success.sum())
+    # At any grasps: the same regression, failures and successes alike.
+    queries = random_poses(7, generator=_gen(36))
+    queries[:, :3] *= 0.02
+    K = torch.stack(
+        [SE3KDE(g[None], sigma_t=0.01, sigma_r=0.3).evaluate(queries) for g in grasps], 1
+    )
+    expected = ((K[:, success] * wn[success]).sum(1) + 2 * overall) / ((K * wn).sum(1) + 2)
+    rates = local_success_rates(trials, w, 0.01, 0.3, prior=2.0, at=queries)
+    torch.testing.assert_close(rates, expected, rtol=1e-4, atol=1e-5)
 
 
 def test_reliability_weighting_favours_grasps_that_succeed_again() -> None:
@@ -335,6 +344,31 @@ def test_best_of_k_draws_pick_the_likelier_grasps() -> None:
         draw_reachable(density, identity_poses(2), None, _gen(13), candidates=0)
     with pytest.raises(ValueError, match="max_draws"):
         draw_reachable(density, identity_poses(2), None, _gen(13), max_draws=0)
+
+
+def test_best_of_k_by_success_rate_picks_the_grasps_that_succeed_again() -> None:
+    """Grasps drawn mostly at a shaky place (one success in three), some at a sure one: the
+    likeliest of 10 draws lies at the shaky place, the one the trials rate best at the sure."""
+    sure, shaky = _pose([0.0, 0.0, 0.0], [0.0, 0.0, 0.0]), _pose([0.08, 0.0, 0.0], [0.0, 0.0, 0.0])
+    proposal = SE3KDE(torch.stack([sure, shaky]), torch.tensor([0.15, 0.85]), 0.01, 0.1)
+    learner = GraspLearner(proposal, sigma_t=0.003, sigma_r=0.08)
+    grasps = proposal.sample(800, _gen(40))
+    at_sure = (grasps[:, :3] - sure[:3]).norm(dim=-1) < 0.03
+    success = at_sure | (torch.rand(800, generator=_gen(41)) < 1 / 3)
+    learner.trials.add(grasps, success, cycle=0)
+    learner.proposals.append(proposal)
+    rates = learner.success_rates(torch.stack([sure, shaky]))
+    assert rates[0] > 0.9 and rates[1] < 0.5
+    near_sure = lambda g: ((g[:, :3] - sure[:3]).norm(dim=-1) < 0.03).float().mean()  # noqa: E731
+    poses = identity_poses(200)
+    likeliest, _, _ = draw_reachable(proposal, poses, None, _gen(42), candidates=10)
+    best, _, _ = draw_reachable(
+        proposal, poses, None, _gen(42), candidates=10, score=learner.success_rates
+    )
+    assert near_sure(likeliest) < 0.1
+    assert near_sure(best) > 0.7  # 1 - 0.85^10 = 0.80 of the placements have a sure draw
+    with pytest.raises(ValueError, match="no trials"):
+        GraspLearner(proposal).success_rates(grasps[:2])
 
 
 def test_pooled_cycles_are_weighted_by_the_mixture_of_their_proposals() -> None:

@@ -122,6 +122,7 @@ def draw_reachable(
     generator: torch.Generator | None = None,
     max_draws: int = 4096,
     candidates: int = 1,
+    score: Callable[[torch.Tensor], torch.Tensor] | None = None,
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """One reachable grasp per object pose, drawn from an object-frame density.
 
@@ -129,9 +130,9 @@ def draw_reachable(
     density restricted to the reachable grasps. Objects left without one keep their first
     draw. The bottle's hypothesis density reaches 1.7% of its draws in every placement, so
     50 draws found none in about 4 placements of 10. With ``candidates`` > 1, that many
-    reachable grasps are drawn per object and the one where the density is highest is kept:
-    the usual way to *use* a grasp density (pick a likely grasp among the feasible ones)
-    rather than to explore it.
+    reachable grasps are drawn per object and the one that ``score`` rates highest is kept
+    (by default the likeliest, where the density is highest): the usual way to *use* a grasp
+    density (pick a good grasp among the feasible ones) rather than to explore it.
 
     Args:
         density: object-frame grasp density.
@@ -140,6 +141,8 @@ def draw_reachable(
         generator: random generator on the density's device.
         max_draws: draws per object and candidate at most.
         candidates: reachable draws per object to choose from (1: plain sampling).
+        score: (M, 7) object-frame grasps -> (M,) ratings of the candidates (default: the
+            density's values), e.g. ``GraspLearner.success_rates``.
 
     Returns:
         (B, 7) object-frame grasps, (B, 7) world grasps, (B,) bool reachable.
@@ -153,9 +156,9 @@ def draw_reachable(
     if candidates == 1:
         return draws[0]
     local, world, ok = (torch.stack(parts) for parts in zip(*draws, strict=True))  # (K, B, .)
-    score = density.evaluate(local.reshape(-1, 7)).reshape(ok.shape)
-    score = torch.where(ok, score, torch.full_like(score, -1.0))
-    best = score.argmax(dim=0)
+    rating = (density.evaluate if score is None else score)(local.reshape(-1, 7))
+    rating = torch.where(ok, rating.reshape(ok.shape), torch.full_like(ok, -1.0, dtype=local.dtype))
+    best = rating.argmax(dim=0)
     pick = torch.arange(len(object_poses))
     return local[best, pick], world[best, pick], ok[best, pick]
 
@@ -241,8 +244,9 @@ def local_success_rates(
     sigma_t: float,
     sigma_r: float,
     prior: float = 1.0,
+    at: torch.Tensor | None = None,
 ) -> torch.Tensor:
-    """(S,) the success rate around every successful trial's grasp.
+    """(M,) the success rate of the trials around M grasps (default: the successful ones).
 
     An importance-weighted kernel regression of the outcomes, shrunk towards the overall
     rate by ``prior`` pseudo-trials: a lone success scores (1 + prior * p) / (1 + prior),
@@ -253,18 +257,29 @@ def local_success_rates(
         weights: (N,) importance weights of the trials.
         sigma_t, sigma_r: kernel of the regression.
         prior: weight of the overall success rate, in trials.
+        at: (M, 7) object-frame grasps to estimate the rate at (default: the S successful
+            trials' grasps, in their order).
 
     Returns:
-        (S,) rates in [0, 1], in the order of the successful trials.
+        (M,) rates in [0, 1], on the trials' device (the CPU).
     """
     success = trials.success
     w = (weights / weights.mean()).float()
-    at = trials.grasps[success]
+    at = trials.grasps[success] if at is None else at.to(trials.grasps)
     # SE3KDE normalises its weights: multiply back by their sums to get sums of w_j K_ij.
     tried = SE3KDE(trials.grasps, w, sigma_t, sigma_r).evaluate(at) * w.sum()
-    won = SE3KDE(at, w[success], sigma_t, sigma_r).evaluate(at) * w[success].sum()
+    won = (
+        SE3KDE(trials.grasps[success], w[success], sigma_t, sigma_r).evaluate(at) * w[success].sum()
+    )
     overall = w[success].sum() / w.sum()
     return ((won + prior * overall) / (tried + prior)).clamp(0.0, 1.0)
+
+
+def trial_weights(trials: Trials, proposals: Sequence[SE3KDE], c_rel: float) -> torch.Tensor:
+    """(N,) importance weights 1 / (q + c) of all trials, q the mixture of the proposals they
+    were drawn from and c = ``c_rel`` times its mean over the trials."""
+    q = mixture_proposal(trials, proposals)
+    return importance_weights(q, c_rel * float(q.mean()))
 
 
 def empirical_density(
@@ -294,8 +309,7 @@ def empirical_density(
     """
     if not trials.success.any():
         return None
-    q = mixture_proposal(trials, proposals)
-    w = importance_weights(q, c_rel * float(q.mean()))
+    w = trial_weights(trials, proposals, c_rel)
     keep = trials.success
     weights = w[keep].float()
     if reliability:
@@ -366,6 +380,20 @@ class GraspLearner:
             self.sigma_r,
             reliability=self.reliability,
         )
+
+    def success_rates(self, grasps: torch.Tensor) -> torch.Tensor:
+        """(M, 7) object-frame grasps -> (M,) the success rate of the trials around each.
+
+        The kernel regression of ``local_success_rates`` over every trial so far (failures
+        too), with the kernels that weight the empirical density's successes. It ranks the
+        candidates of a best-of-K draw by how often grasps like them succeeded, where the
+        density's value ranks them by how many successes lie near them."""
+        if len(self.trials) == 0:
+            raise ValueError("no trials yet: run a cycle before estimating success rates")
+        w = trial_weights(self.trials, self.proposals, self.c_rel)
+        k = RELIABILITY_WIDTH
+        rates = local_success_rates(self.trials, w, k * self.sigma_t, k * self.sigma_r, at=grasps)
+        return rates.to(grasps.device)
 
     def run_cycle(
         self,
@@ -503,6 +531,7 @@ def run_trials(
     candidates: int = 1,
     records: list[dict[str, Any]] | None = None,
     fallback: SE3KDE | None = None,
+    score: Callable[[torch.Tensor], torch.Tensor] | None = None,
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
     """Execute grasps drawn from an object-frame density on fresh object placements.
 
@@ -520,7 +549,7 @@ def run_trials(
             the first draw is executed and normally fails).
         generator: random generator for drawing grasps.
         progress: called with the number of trials finished after each batch.
-        candidates: see ``draw_reachable`` (1: plain samples).
+        candidates, score: see ``draw_reachable`` (1 candidate: plain samples).
         records: if given, one dict per trial is appended: ``seed``, ``grasp`` (object
             frame), ``world_grasp``, ``reachable``, ``success``, and the runner's
             diagnostics named in ``RESET_FIELDS`` and ``STEP_FIELDS``, and ``fallback``.
@@ -547,9 +576,11 @@ def run_trials(
         for j in range(B):
             g = torch.Generator(device).manual_seed(draw_seeds[start + j])
             pose = placed[j : j + 1]
-            draw = draw_reachable(density, pose, workspace, g, candidates=candidates)
+            draw = draw_reachable(density, pose, workspace, g, candidates=candidates, score=score)
             if fallback is not None and not draw[2].all():
-                draw = draw_reachable(fallback, pose, workspace, g, candidates=candidates)
+                draw = draw_reachable(
+                    fallback, pose, workspace, g, candidates=candidates, score=score
+                )
                 used[j] = True
             draws.append(draw)
         local, world, ok = (torch.cat(parts) for parts in zip(*draws, strict=True))
@@ -600,12 +631,13 @@ def evaluate_density(
     candidates: int = 1,
     records: list[dict[str, Any]] | None = None,
     fallback: SE3KDE | None = None,
+    score: Callable[[torch.Tensor], torch.Tensor] | None = None,
 ) -> dict[str, float]:
     """Success rate of grasps drawn from ``density`` on the placements ``seeds``.
 
-    ``candidates`` > 1 executes, per placement, the likeliest of that many reachable draws
-    (see ``draw_reachable``); 1 executes plain samples. ``records`` and ``fallback``: see
-    ``run_trials``.
+    ``candidates`` > 1 executes, per placement, the best of that many reachable draws by
+    ``score`` (default: the likeliest; see ``draw_reachable``); 1 executes plain samples.
+    ``records`` and ``fallback``: see ``run_trials``.
 
     Returns:
         ``success_rate``, ``trials``, ``reachable_rate``, ``fallback_rate``, ``seconds``,
@@ -623,6 +655,7 @@ def evaluate_density(
         candidates=candidates,
         records=records,
         fallback=fallback,
+        score=score,
     )
     seconds = time.perf_counter() - start
     return {
