@@ -174,11 +174,11 @@ class GraspTrialEnv(gym.Env):
         lift_height: how far the gripper lifts after closing (metres).
         lift_threshold: minimum object rise for success (metres).
         reach_tolerance: (metres, radians) pre-grasp error beyond which the trial stops as
-            unreachable; within it the approach goes on and the grasp decides. Most arms
-            that miss the pre-grasp pose stop 2-4 cm short of it, and about half of such
-            grasps still lift the object: with 2 cm and 0.2 rad, 10-14 trials of 200 an
-            object stopped as unreachable, and learned densities succeeded 0.03-0.05 less
-            often than with the default (box, bottle, can).
+            unreachable; within it the approach goes on and the grasp decides. Where the
+            arm misses the pre-grasp pose it mostly stops 2-4 cm short, and about half of
+            those grasps still lift the object: with 2 cm and 0.2 rad, 9-14 of 200 trials an
+            object stopped as unreachable, and learned densities succeeded 0.025-0.045 less
+            often than with the default (box, bottle, can, bread).
     """
 
     metadata: ClassVar[dict[str, Any]] = {"render_modes": ["rgb_array"], "render_fps": 20}
