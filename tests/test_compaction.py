@@ -9,6 +9,7 @@ from vistask.rlvc import (
     ClassBDD,
     ClassTree,
     InteractionDatabase,
+    acceptable,
     interchangeable,
     merge_groups,
 )
@@ -37,6 +38,28 @@ def test_interchangeable_equals_its_definition_pair_by_pair():
                 and q[i, greedy[j]] >= v[i] - tolerance
             )
     assert torch.equal(interchangeable(q, tolerance), expected)
+
+
+def test_acceptable_equals_its_definition_pair_by_pair():
+    q, tolerance, value_tolerance = random_q(40, 3, seed=1), 0.3, 1.2
+    v, greedy = state_values(q), q.argmax(dim=1)
+    tried = torch.isfinite(q).any(dim=1)
+    expected = torch.zeros(40, 40, dtype=torch.bool)
+    for i in range(40):
+        for j in range(40):
+            expected[i, j] = i == j or bool(
+                tried[i]
+                and tried[j]
+                and abs(v[i] - v[j]) <= value_tolerance
+                and q[i, greedy[j]] >= v[i] - tolerance
+            )
+    result = acceptable(q, tolerance, value_tolerance)
+    assert torch.equal(result, expected)
+    assert not torch.equal(result, result.T)  # one way only
+    each_way = acceptable(q, tolerance, tolerance)
+    assert torch.equal(interchangeable(q, tolerance), each_way & each_way.T)
+    with pytest.raises(ValueError, match="tolerances must be >= 0"):
+        acceptable(q, 0.1, -1.0)
 
 
 @pytest.mark.parametrize("seed", range(3))

@@ -4,7 +4,7 @@ actions (joint tree, learner)."""
 
 from vistask.rlvc.bdd import ClassBDD
 from vistask.rlvc.classifier import JointClassifier, VisualClassifier
-from vistask.rlvc.compaction import interchangeable, merge_groups
+from vistask.rlvc.compaction import acceptable, interchangeable, merge_groups
 from vistask.rlvc.database import (
     InteractionDatabase,
     Transitions,
@@ -34,6 +34,7 @@ __all__ = [
     "ThresholdSplit",
     "Transitions",
     "VisualClassifier",
+    "acceptable",
     "check_image_env",
     "collect",
     "estimate_mdp",

@@ -1,5 +1,6 @@
 """Which visual classes compaction merges (paper section 2.5.2): classes whose optimal values
-are close and whose greedy actions are interchangeable.
+are close and whose greedy actions are interchangeable; and where a dropped feature may move
+the percepts that show it.
 
 Classes s1 and s2 are interchangeable within a tolerance t when
 
@@ -8,6 +9,16 @@ Classes s1 and s2 are interchangeable within a tolerance t when
 with a_i the greedy action of s_i. The relation is not transitive, so groups are built
 greedily as cliques: every pair inside a group is interchangeable, and any member's greedy
 action loses at most t in every other member.
+
+A feature that compaction drops moves the few percepts that show it, not whole classes: a
+percept of s1 may go to s2 when s2's greedy action loses at most t in s1 and the values differ
+by at most ``DROP_VALUE_TOLERANCE`` t. On the visual maze (seeds 0-4) this drops half of the
+features that interchangeable classes keep (348 selected features against 736, the tree's
+832) at the same return (0.935 of the oracle's against 0.930); values within 5 t kept 392
+features, any values 351 at 0.914 of the oracle's return. A learner that makes compounds
+drops a feature only where it moves percepts between interchangeable classes: on the mountain
+car, dropping features this way lowered the mean return from 0.80 to 0.75 of the oracle's
+(seeds 0-4; 0.76 when compounds were kept), with half the selected features.
 """
 
 from __future__ import annotations
@@ -15,6 +26,34 @@ from __future__ import annotations
 import torch
 
 from vistask.rlvc.solver import state_values
+
+DROP_VALUE_TOLERANCE = 10.0  # in tolerances; see the module's docstring
+
+
+def acceptable(q: torch.Tensor, tolerance: float, value_tolerance: float) -> torch.Tensor:
+    """(S, A) Q -> (S, S) bool: class j's greedy action loses at most ``tolerance`` in class i,
+    and their values differ by at most ``value_tolerance``.
+
+    Actions a class never tried (Q = -inf) are never acceptable, and no class with no tried
+    action is. Every class is acceptable to itself.
+
+    Example:
+        >>> q = torch.tensor([[1.0, 0.0], [0.7, 0.0], [0.0, 1.0]])
+        >>> acceptable(q, 0.1, 0.5)
+        tensor([[ True,  True, False],
+                [ True,  True, False],
+                [False, False,  True]])
+    """
+    if q.ndim != 2:
+        raise ValueError(f"q must be (S, A), got shape {tuple(q.shape)}")
+    if tolerance < 0 or value_tolerance < 0:
+        raise ValueError(f"tolerances must be >= 0, got {tolerance} and {value_tolerance}")
+    v, greedy = state_values(q), q.argmax(dim=1)
+    tried = torch.isfinite(q).any(dim=1)
+    # other[i, j] = Q(s_i, a_j): the value of class j's greedy action taken in class i.
+    fits = q[:, greedy] >= v[:, None] - tolerance
+    close = (v[:, None] - v[None, :]).abs() <= value_tolerance
+    return close & fits & tried[:, None] & tried[None, :] | torch.eye(len(q)).bool()
 
 
 def interchangeable(q: torch.Tensor, tolerance: float) -> torch.Tensor:
@@ -30,17 +69,8 @@ def interchangeable(q: torch.Tensor, tolerance: float) -> torch.Tensor:
                 [ True,  True, False],
                 [False, False,  True]])
     """
-    if q.ndim != 2:
-        raise ValueError(f"q must be (S, A), got shape {tuple(q.shape)}")
-    if tolerance < 0:
-        raise ValueError(f"tolerance must be >= 0, got {tolerance}")
-    v, greedy = state_values(q), q.argmax(dim=1)
-    tried = torch.isfinite(q).any(dim=1)
-    # other[i, j] = Q(s_i, a_j): the value of class j's greedy action taken in class i.
-    other = q[:, greedy]
-    fits = other >= v[:, None] - tolerance
-    close = (v[:, None] - v[None, :]).abs() <= tolerance
-    return close & fits & fits.T & tried[:, None] & tried[None, :] | torch.eye(len(q)).bool()
+    each_way = acceptable(q, tolerance, tolerance)
+    return each_way & each_way.T
 
 
 def merge_groups(q: torch.Tensor, tolerance: float) -> torch.Tensor:
@@ -72,4 +102,4 @@ def merge_groups(q: torch.Tensor, tolerance: float) -> torch.Tensor:
     return group
 
 
-__all__ = ["interchangeable", "merge_groups"]
+__all__ = ["DROP_VALUE_TOLERANCE", "acceptable", "interchangeable", "merge_groups"]

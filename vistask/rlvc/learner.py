@@ -22,7 +22,12 @@ from tqdm.auto import tqdm
 
 from vistask.features import Compound
 from vistask.rlvc.bdd import ClassBDD
-from vistask.rlvc.compaction import interchangeable, merge_groups
+from vistask.rlvc.compaction import (
+    DROP_VALUE_TOLERANCE,
+    acceptable,
+    interchangeable,
+    merge_groups,
+)
 from vistask.rlvc.compound_search import find_compound_splits
 from vistask.rlvc.database import InteractionDatabase
 from vistask.rlvc.solver import estimate_mdp, state_values, td_errors, value_iteration
@@ -91,9 +96,11 @@ class RLVC:
             compound found becomes feature ``n_features``, which then grows.
         compound_tolerances: tolerances of candidate compounds, in units of keypoint scale.
         compaction: hold the classes in a BDD (``ClassBDD``) and merge interchangeable
-            classes when learning stops, and split classes on features they already test
-            where those do half as well as the best split (False: a ``ClassTree`` that only
-            splits, on the best feature).
+            classes when learning stops, then drop the features whose absence leaves every
+            percept a good action (``compaction.acceptable``; with compounds, only those
+            whose absence keeps every percept among interchangeable classes), and split
+            classes on features they already test where those do half as well as the best
+            split (False: a ``ClassTree`` that only splits, on the best feature).
         compact_every: with ``compaction``, merge every this many stages as well (None:
             only when learning stops).
         compaction_tolerance: classes merge when their values, and the values of their
@@ -316,9 +323,14 @@ class RLVC:
         groups = merge_groups(q, tolerance)
         self.structure.merge(groups)
         classes = groups[classes]
-        # A feature whose absence only moves percepts between interchangeable merged classes
-        # is not needed either.
-        allowed = interchangeable(self.solve(db, classes), tolerance)
+        # A feature is not needed either where its absence leaves the percepts it moves a
+        # good action; with compounds, only where it moves them between interchangeable
+        # classes (see the ``compaction`` module).
+        q = self.solve(db, classes)
+        if self.use_compounds:
+            allowed = interchangeable(q, tolerance)
+        else:
+            allowed = acceptable(q, tolerance, DROP_VALUE_TOLERANCE * tolerance)
         _, classes = self.structure.simplify(db.presence, allowed)
         self._splits_since_compaction = 0
         self._no_compound.clear()  # class ids changed
