@@ -50,7 +50,7 @@ def acceptable(q: torch.Tensor, tolerance: float, value_tolerance: float) -> tor
         raise ValueError(f"tolerances must be >= 0, got {tolerance} and {value_tolerance}")
     v, greedy = state_values(q), q.argmax(dim=1)
     tried = torch.isfinite(q).any(dim=1)
-    # other[i, j] = Q(s_i, a_j): the value of class j's greedy action taken in class i.
+    # q[:, greedy][i, j] = Q(s_i, a_j): the value of class j's greedy action taken in class i.
     fits = q[:, greedy] >= v[:, None] - tolerance
     close = (v[:, None] - v[None, :]).abs() <= value_tolerance
     return close & fits & tried[:, None] & tried[None, :] | torch.eye(len(q)).bool()
