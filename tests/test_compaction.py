@@ -23,41 +23,37 @@ def random_q(n_states: int, n_actions: int, seed: int) -> torch.Tensor:
     return torch.from_numpy(q)
 
 
-def test_interchangeable_equals_its_definition_pair_by_pair():
-    q, tolerance = random_q(40, 3, seed=0), 0.3
+def pair_by_pair(q: torch.Tensor, holds) -> torch.Tensor:
+    """(S, S) bool: i == j, or both classes tried an action and ``holds(i, j, v, greedy)``."""
     v, greedy = state_values(q), q.argmax(dim=1)
     tried = torch.isfinite(q).any(dim=1)
-    expected = torch.zeros(40, 40, dtype=torch.bool)
-    for i in range(40):
-        for j in range(40):
-            expected[i, j] = i == j or bool(
-                tried[i]
-                and tried[j]
-                and abs(v[i] - v[j]) <= tolerance
-                and q[j, greedy[i]] >= v[j] - tolerance
-                and q[i, greedy[j]] >= v[i] - tolerance
-            )
-    assert torch.equal(interchangeable(q, tolerance), expected)
+    n = len(q)
+    expected = torch.zeros(n, n, dtype=torch.bool)
+    for i in range(n):
+        for j in range(n):
+            expected[i, j] = i == j or bool(tried[i] and tried[j] and holds(i, j, v, greedy))
+    return expected
+
+
+def test_interchangeable_equals_its_definition_pair_by_pair():
+    q, t = random_q(40, 3, seed=0), 0.3
+    expected = pair_by_pair(
+        q,
+        lambda i, j, v, greedy: (
+            abs(v[i] - v[j]) <= t and q[j, greedy[i]] >= v[j] - t and q[i, greedy[j]] >= v[i] - t
+        ),
+    )
+    assert torch.equal(interchangeable(q, t), expected)
 
 
 def test_acceptable_equals_its_definition_pair_by_pair():
-    q, tolerance, value_tolerance = random_q(40, 3, seed=1), 0.3, 1.2
-    v, greedy = state_values(q), q.argmax(dim=1)
-    tried = torch.isfinite(q).any(dim=1)
-    expected = torch.zeros(40, 40, dtype=torch.bool)
-    for i in range(40):
-        for j in range(40):
-            expected[i, j] = i == j or bool(
-                tried[i]
-                and tried[j]
-                and abs(v[i] - v[j]) <= value_tolerance
-                and q[i, greedy[j]] >= v[i] - tolerance
-            )
-    result = acceptable(q, tolerance, value_tolerance)
+    q, t, value_t = random_q(40, 3, seed=1), 0.3, 1.2
+    expected = pair_by_pair(
+        q, lambda i, j, v, greedy: abs(v[i] - v[j]) <= value_t and q[i, greedy[j]] >= v[i] - t
+    )
+    result = acceptable(q, t, value_t)
     assert torch.equal(result, expected)
     assert not torch.equal(result, result.T)  # one way only
-    each_way = acceptable(q, tolerance, tolerance)
-    assert torch.equal(interchangeable(q, tolerance), each_way & each_way.T)
     with pytest.raises(ValueError, match="tolerances must be >= 0"):
         acceptable(q, 0.1, -1.0)
 
