@@ -67,9 +67,9 @@ class RLVCAgent(VisualAgent):
         compaction: hold the classes in a BDD; when the stages of a database end, merge
             classes with close values and interchangeable greedy actions, then drop the
             features whose absence leaves every percept seen a good action (with compounds:
-            keeps it among interchangeable classes); splits take a feature the classes
-            already test when it does half as well as the best (False: a decision tree that
-            only splits, on the best feature).
+            only where it keeps them among interchangeable classes); splits take a feature
+            the classes already test when it does half as well as the best (False: a
+            decision tree that only splits, on the best feature).
         compact_every: with ``compaction``, merge every this many stages as well (None:
             only when the stages of a database end).
         compaction_tolerance: merge classes whose values, and the values of their greedy

@@ -326,11 +326,11 @@ class RLVC:
         # A feature is not needed either where its absence leaves the percepts it moves a
         # good action; with compounds, only where it moves them between interchangeable
         # classes (see the ``compaction`` module).
-        q = self.solve(db, classes)
+        merged_q = self.solve(db, classes)
         if self.use_compounds:
-            allowed = interchangeable(q, tolerance)
+            allowed = interchangeable(merged_q, tolerance)
         else:
-            allowed = acceptable(q, tolerance, DROP_VALUE_TOLERANCE * tolerance)
+            allowed = acceptable(merged_q, tolerance, DROP_VALUE_TOLERANCE * tolerance)
         _, classes = self.structure.simplify(db.presence, allowed)
         self._splits_since_compaction = 0
         self._no_compound.clear()  # class ids changed
