@@ -56,6 +56,12 @@ def test_compound_presence_equals_brute_force_on_random_keypoints():
         assert np.array_equal(with_compounds.presence(11).numpy()[:, 5:], got)
 
 
+def test_a_candidate_of_parts_the_images_do_not_show_is_absent():
+    occ = Occurrences([0, 0], [0, 1], [[0, 0], [2, 0]], [2, 2], 2)
+    candidates = [Compound(0, 1, (1.0, 0.0), 0.1), Compound(0, 7, (1.0, 0.0), 0.1)]
+    assert presence_of_candidates(occ, candidates).tolist() == [[True, False], [False, False]]
+
+
 def test_a_compound_of_a_compound_occurs_at_its_parts_midpoint():
     occ = Occurrences([0, 0, 0], [0, 1, 2], [[0, 0], [4, 0], [2, 6]], [2, 2, 2], 1)
     pair = Compound(0, 1, (2.0, 0.0), 0.1)  # 1 two scales right of 0: at (2, 0)

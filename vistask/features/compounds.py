@@ -278,7 +278,10 @@ def presence_of_candidates(occ: Occurrences, candidates: list[Compound]) -> torc
     for k, c in enumerate(candidates):
         by_pair.setdefault((c.first, c.second), []).append(k)
     order = np.argsort(occ.part, kind="stable")
-    bounds = np.searchsorted(occ.part[order], np.arange(int(occ.part.max(initial=0)) + 2))
+    # Parts up to the largest that a candidate or an occurrence names: a candidate may name a
+    # part that these images do not show (it is then absent).
+    last = max(int(occ.part.max(initial=0)), *(max(c.first, c.second) for c in candidates), 0)
+    bounds = np.searchsorted(occ.part[order], np.arange(last + 2))
     for (a, b), ks in by_pair.items():
         # A stable argsort keeps each part's occurrences in ascending (image) order.
         i, j = pairs(occ, order[bounds[a] : bounds[a + 1]], order[bounds[b] : bounds[b + 1]])
