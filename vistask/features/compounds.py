@@ -280,7 +280,7 @@ def presence_of_candidates(occ: Occurrences, candidates: list[Compound]) -> torc
     order = np.argsort(occ.part, kind="stable")
     # Parts up to the largest that a candidate or an occurrence names: a candidate may name a
     # part that these images do not show (it is then absent).
-    last = max(int(occ.part.max(initial=0)), *(max(c.first, c.second) for c in candidates), 0)
+    last = max([int(occ.part.max(initial=0))] + [max(c.first, c.second) for c in candidates])
     bounds = np.searchsorted(occ.part[order], np.arange(last + 2))
     for (a, b), ks in by_pair.items():
         # A stable argsort keeps each part's occurrences in ascending (image) order.
