@@ -46,7 +46,8 @@ class ObjectSpec:
         make: builds the robosuite object, given the MuJoCo name of the instance.
         symmetry: rotational symmetry of its shape, in its body frame.
         rest: (4,) XYZW rotation that stands it in its natural rest pose on the table.
-        can_tip: whether it may be laid on a side (not round objects, which roll away).
+        can_tip: whether it may be laid on a side (not objects round about a vertical axis,
+            which would roll away).
         shape_symmetry: the symmetry of its shape alone where its texture breaks it (bread
             turned by half a turn), or None when that is ``symmetry``.
     """
@@ -91,6 +92,11 @@ _SYMMETRIES: dict[str, Callable[[], Symmetry]] = {
     "MilkObject": lambda: Symmetry.about_axis((0.0, 0.0, 1.0), order=2),
     "CerealObject": Symmetry.box,
     "BoxObject": Symmetry.box,
+    # An ellipsoid of uniform texture: any turn about its long axis, and end for end. Its
+    # cross-section is 40 x 43 mm, so a turn about that axis moves its outline 1.5 mm at most.
+    "LemonObject": lambda: Symmetry(
+        Symmetry.about_axis((0.0, 0.0, 1.0), order=2).rotations, axis=torch.tensor([1.0, 0.0, 0.0])
+    ),
 }
 
 # Shapes whose texture alone tells poses apart that the shape does not: only the crust tells
@@ -100,6 +106,11 @@ _SHAPE_ONLY: dict[str, Callable[[], Symmetry]] = {
 }
 
 _PRESETS: dict[str, ObjectSpec] = {}
+
+
+def _can_tip(symmetry: Symmetry) -> bool:
+    """Cans and bottles, round about their upright axis, would roll away on a side."""
+    return symmetry.axis is None or abs(float(symmetry.axis[2])) < 0.5
 
 
 def register_object(spec: ObjectSpec) -> None:
@@ -113,7 +124,7 @@ def _preset(name: str, cls_name: str, symmetry: Symmetry | None = None, **kwargs
         return _fixed(_robosuite_classes()[cls_name], **kwargs)(instance)
 
     sym = symmetry or _SYMMETRIES.get(cls_name, Symmetry.none)()
-    register_object(ObjectSpec(name, make, sym, can_tip=sym.axis is None))
+    register_object(ObjectSpec(name, make, sym, can_tip=_can_tip(sym)))
 
 
 _preset("box", "BoxObject", size=(0.045, 0.03, 0.02), rgba=(0.15, 0.45, 0.8, 1.0))
@@ -188,7 +199,7 @@ def object_spec(name: str | Path | ObjectSpec) -> ObjectSpec:
         snake,
         _fixed(classes[cls_name]),
         sym,
-        can_tip=sym.axis is None,
+        can_tip=_can_tip(sym),
         shape_symmetry=None if shape is None else shape(),
     )
 

@@ -1,6 +1,6 @@
 """Learn empirical grasp densities by trial and error on a robosuite Panda (paper 3.5).
 
-    python scripts/learn_grasps.py --out runs/grasps          # 6 objects, 300 trials each
+    python scripts/learn_grasps.py --out runs/grasps          # 8 objects, 300 trials each
     python scripts/learn_grasps.py --quick                    # a small smoke run
     python scripts/learn_grasps.py --objects can my_mug.xml   # robosuite classes, MJCF files
     python scripts/learn_grasps.py --pose-source true         # ablation: act on true poses

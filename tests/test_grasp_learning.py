@@ -87,7 +87,7 @@ def test_importance_weights_recover_a_known_success_function() -> None:
     trials = Trials()
     trials.add(grasps, success, cycle=0)
     empirical = empirical_density(
-        trials, [proposal], c_rel=0.01, sigma_t=0.01, sigma_r=0.2, reliability=False
+        trials, [proposal], c_rel=0.01, sigma_t=0.01, sigma_r=0.2, reliability=0
     )
     raw = grasps[success, :3].double()
     weighted = (empirical.weights.double()[:, None] * empirical.points[:, :3].double()).sum(0)
@@ -136,7 +136,8 @@ def test_local_success_rates_match_brute_force() -> None:
 
 def test_reliability_weighting_favours_grasps_that_succeed_again() -> None:
     """Two places succeed: one always, one one time in three. Weighting successes by the
-    success rate around them moves draws from the shaky place to the sure one."""
+    success rate around them moves draws from the shaky place to the sure one, the more so
+    at a higher power of the rate."""
     sure, shaky = _pose([0.0, 0.0, 0.0], [0.0, 0.0, 0.0]), _pose([0.08, 0.0, 0.0], [0.0, 0.0, 0.0])
     proposal = SE3KDE(torch.stack([sure, shaky]), sigma_t=0.015, sigma_r=0.1)
     near = lambda g, c: (g[:, :3] - c[:3]).norm(dim=-1) < 0.02  # noqa: E731
@@ -148,15 +149,19 @@ def test_reliability_weighting_favours_grasps_that_succeed_again() -> None:
     at_sure = near(trials.grasps[trials.success], sure)
     assert rates[at_sure].mean() > 1.5 * rates[~at_sure].mean()
     kwargs = {"c_rel": 1.0, "sigma_t": 0.003, "sigma_r": 0.08}
-    plain = empirical_density(trials, [proposal], reliability=False, **kwargs)
-    weighted = empirical_density(trials, [proposal], **kwargs)
+    plain, once, cubed = (
+        empirical_density(trials, [proposal], reliability=k, **kwargs) for k in (0, 1, 3)
+    )
     share = lambda d: near(d.sample(4000, _gen(35)), sure).float().mean().item()  # noqa: E731
-    assert share(weighted) > share(plain) + 0.05
+    assert share(once) > share(plain) + 0.05
+    assert share(cubed) > share(once) + 0.05
+    with pytest.raises(ValueError, match="reliability"):
+        empirical_density(trials, [proposal], reliability=-1.0, **kwargs)
     # With every trial a success, the rates are all 1 and the weights those of the paper.
     trials.success[:] = True
     torch.testing.assert_close(
         empirical_density(trials, [proposal], **kwargs).weights,
-        empirical_density(trials, [proposal], reliability=False, **kwargs).weights,
+        empirical_density(trials, [proposal], reliability=0, **kwargs).weights,
     )
 
 

@@ -29,10 +29,26 @@ def test_objects_resolve_by_preset_class_or_file() -> None:
     assert object_spec("can").symmetry.axis is not None and not object_spec("can").can_tip
     assert object_name(MJCF) == "l_block"
     assert object_spec("lemon").make("lemon_1").name == "lemon_1"
+    assert object_spec("lemon").can_tip  # round about a horizontal axis: it may lie on its end
     with pytest.raises(ValueError, match="robosuite object class"):
         object_spec("teapot")
     with pytest.raises(ValueError, match="no MJCF file"):
         object_spec("/nowhere/mug.xml")
+
+
+def test_a_lemon_turned_about_its_long_axis_or_end_for_end_is_the_same_pose() -> None:
+    from vistask.vision import pose_error
+
+    lemon = object_spec("lemon").symmetry
+    true = torch.tensor([0.1, 0.0, 0.8, 0.0, 0.0, 0.0, 1.0])
+
+    def turned(rotvec) -> torch.Tensor:
+        return torch.cat([true[:3], roma.rotvec_to_unitquat(torch.tensor(rotvec))])
+
+    for same in ([1.1, 0.0, 0.0], [0.0, 0.0, np.pi], [-2.5, 0.0, 0.0]):
+        assert float(pose_error(turned(same), true, lemon)[1]) < 0.01
+    _, tilted = pose_error(turned([0.0, 0.0, 0.5]), true, lemon)  # its long axis turned
+    assert abs(float(tilted) - np.degrees(0.5)) < 0.01
 
 
 def test_a_scene_does_not_depend_on_the_other_objects_a_world_holds() -> None:

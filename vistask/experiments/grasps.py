@@ -61,7 +61,7 @@ density the one whose neighbours among the learning trials succeeded most often
 
 HYPOTHESES = ("feature", "demo")
 POSE_SOURCES = ("estimate", "true")
-DEFAULT_OBJECTS = ("box", "cereal", "can", "bottle", "bread", "lemon")
+DEFAULT_OBJECTS = ("box", "cereal", "milk", "can", "bottle", "bread", "lemon", "hammer")
 
 
 def hypothesis_density(
