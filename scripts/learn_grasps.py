@@ -86,6 +86,13 @@ def main() -> None:
         default=defaults["c_rel"],
         help="weight offset c / mean q",
     )
+    parser.add_argument(
+        "--reliability",
+        type=non_negative_float,
+        default=defaults["reliability"],
+        help="power of the local success rate in a success's weight: 3 samples better, "
+        "1 ranks the best of 10 better, 0 is the paper's",
+    )
     parser.add_argument("--seed", type=int, default=defaults["seed"])
     parser.add_argument("--quick", action="store_true", help="2 cycles of 10, 10 eval trials")
     args = parser.parse_args()
@@ -110,6 +117,7 @@ def main() -> None:
             n_distractors=args.distractors,
             tip_probability=args.tip_probability,
             c_rel=args.c_rel,
+            reliability=args.reliability,
             seed=args.seed,
             **where,
         )

@@ -40,7 +40,7 @@ from vistask.grasp.hypothesis import (
     feature_hypothesis_density,
     scripted_teacher_grasps,
 )
-from vistask.grasp.learning import GraspLearner, evaluate_density
+from vistask.grasp.learning import RELIABILITY_POWER, GraspLearner, evaluate_density
 from vistask.grasp.plots import density_figure
 from vistask.objects import ObjectModel
 from vistask.parallel import cluster_address
@@ -125,6 +125,9 @@ class GraspExperiment:
             grasps of the box, bottle and can succeeded 0.04-0.05 more often than with 3 mm
             and 0.08 rad.
         c_rel: importance-weight offset relative to the mean proposal density.
+        reliability: the power of the local success rate in every success's weight
+            (``GraspLearner``): higher concentrates the learned density on the grasps that
+            succeed most often; 0 gives the paper's weights.
         seed: random seed of grasp draws.
         address: a Ray cluster to run the simulators on as actors (``RayGraspTrials``;
             default ``RAY_ADDRESS``); None runs them as local processes
@@ -152,6 +155,7 @@ class GraspExperiment:
         empirical_sigma_t: float = 0.002,
         empirical_sigma_r: float = 0.05,
         c_rel: float = 1.0,
+        reliability: float = RELIABILITY_POWER,
         seed: int = 0,
         address: str | None = None,
     ) -> None:
@@ -174,7 +178,7 @@ class GraspExperiment:
             empirical_sigma_t=empirical_sigma_t,
             empirical_sigma_r=empirical_sigma_r,
         )
-        check_at_least(0, c_rel=c_rel, n_distractors=n_distractors)
+        check_at_least(0, c_rel=c_rel, reliability=reliability, n_distractors=n_distractors)
         if not 0.0 <= tip_probability <= 1.0:
             raise ValueError(f"tip_probability must be in [0, 1], got {tip_probability}")
         self.objects = tuple(str(o) for o in objects)
@@ -191,6 +195,7 @@ class GraspExperiment:
         self.empirical_sigma_t = empirical_sigma_t
         self.empirical_sigma_r = empirical_sigma_r
         self.c_rel = c_rel
+        self.reliability = reliability
         self.seed = seed
         self.address = address
 
@@ -278,6 +283,7 @@ class GraspExperiment:
                     c_rel=self.c_rel,
                     sigma_t=self.empirical_sigma_t,
                     sigma_r=self.empirical_sigma_r,
+                    reliability=self.reliability,
                 )
             n = self.trials_per_cycle
             for k in range(len(learner.history), self.cycles):

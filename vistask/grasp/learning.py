@@ -239,11 +239,11 @@ trials to tell a reliable grasp from a lucky one."""
 
 
 RELIABILITY_POWER = 3.0
-"""The power of the local success rate in a success's weight. Learned anew on the simulator's
-true poses (300 trials, 200 held-out placements), sampled grasps succeeded 0.02 more often on
-average with the rate's cube than with the rate itself, over eight pairs of runs (the bottle
-0.81 -> 0.86, its mid-body grasps that succeed two times in three weighing less); the best
-rated of 10 did as well with either (docs/results.md)."""
+"""The power of the local success rate in a success's weight. With the cube rather than the
+rate itself, acting on NBP's estimates (eight objects, 100 held-out placements), sampled
+grasps succeeded 0.03 more often on average (-0.01 to +0.13; six objects of eight at 0.85
+or more, against five), and the best rated of 10 0.02 less often (-0.09 to +0.09): the draws
+crowd on fewer grasps, and the best of 10 has less to choose from (docs/results.md)."""
 
 
 def local_success_rates(
