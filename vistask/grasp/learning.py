@@ -316,10 +316,9 @@ def empirical_density(
         local success rates to the power ``reliability``.
 
     Raises:
-        ValueError: ``reliability`` negative.
+        ValueError: ``reliability`` negative or NaN.
     """
-    if reliability < 0:
-        raise ValueError(f"reliability must be non-negative, got {reliability}")
+    check_at_least(0, reliability=reliability)
     if not trials.success.any():
         return None
     w = trial_weights(trials, proposals, c_rel)
@@ -372,8 +371,7 @@ class GraspLearner:
     ) -> None:
         if c_rel < 0:
             raise ValueError(f"c_rel must be non-negative, got {c_rel}")
-        if reliability < 0:
-            raise ValueError(f"reliability must be non-negative, got {reliability}")
+        check_at_least(0, reliability=reliability)
         self.hypothesis = hypothesis
         self.workspace = workspace
         self.c_rel = c_rel
