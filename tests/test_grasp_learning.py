@@ -157,6 +157,8 @@ def test_reliability_weighting_favours_grasps_that_succeed_again() -> None:
     assert share(cubed) > share(once) + 0.05
     with pytest.raises(ValueError, match="reliability"):
         empirical_density(trials, [proposal], reliability=-1.0, **kwargs)
+    with pytest.raises(ValueError, match="exploration"):
+        GraspLearner(proposal, exploration=float("nan"))
     # With every trial a success, the rates are all 1 and the weights those of the paper.
     trials.success[:] = True
     torch.testing.assert_close(
@@ -232,7 +234,16 @@ def test_learning_cycles_improve_on_the_hypothesis_and_round_trip(tmp_path) -> N
     torch.testing.assert_close(a.weights, b.weights)
     assert (a.sigma_t, a.sigma_r) == (b.sigma_t, b.sigma_r)
     assert loaded.history == learner.history
+    # The next trials are drawn from the successes weighted by the rate itself, the robot
+    # samples them weighted by its cube; a loaded learner goes on as the saved one would.
+    assert (learner.exploration, learner.reliability) == (1.0, 3.0)
+    explored = empirical_density(
+        learner.trials, learner.proposals, 0.1, 0.005, 0.15, reliability=1.0
+    )
+    torch.testing.assert_close(learner.proposal.weights, explored.weights)
+    assert not torch.allclose(learner.proposal.weights, a.weights)
     torch.testing.assert_close(loaded.proposal.points, a.points)
+    torch.testing.assert_close(loaded.proposal.weights, learner.proposal.weights)
     a.save(tmp_path / "empirical.pt")
     c = SE3KDE.load(tmp_path / "empirical.pt")
     queries = a.sample(50, _gen(11))

@@ -7,12 +7,13 @@ grasp density, which becomes the next cycle's proposal. The offset c bounds the 
 successes found where q is tiny (it keeps one lucky grasp from swallowing the density); here
 c = ``c_rel`` times the mean of q over the trials, so it scales with q.
 
-Every success is also weighted by the cube of the success rate of the trials around it (an
+Every success is also weighted by a power of the success rate of the trials around it (an
 importance-weighted kernel regression of the outcomes, ``local_success_rates``). The paper's
 weights alone estimate the grasp affordance, where a grasp that succeeded once by luck weighs
 as much as one that succeeds every time; drawing from it succeeds as often as the hypothesis's
-successes did on average. With the local rates, the next cycles draw near grasps that keep
-succeeding, and the learned density is the one a robot should sample from. Where the current
+successes did on average. With the rate itself, the next cycles draw near grasps that keep
+succeeding while still trying every kind of grasp that worked; with its cube, the learned
+density crowds on the most reliable ones, and is the one a robot should sample from. Where the current
 proposal has no reachable grasp for a placement (it concentrated on the grasps of one way the
 object lies), the trial draws from the hypothesis instead, and counts as its draw.
 
@@ -239,11 +240,15 @@ trials to tell a reliable grasp from a lucky one."""
 
 
 RELIABILITY_POWER = 3.0
-"""The power of the local success rate in a success's weight. With the cube rather than the
-rate itself, acting on NBP's estimates (eight objects, 100 held-out placements), sampled
-grasps succeeded 0.03 more often on average (-0.01 to +0.13; six objects of eight at 0.85
-or more, against five), and the best rated of 10 0.02 less often (-0.09 to +0.09): the draws
-crowd on fewer grasps, and the best of 10 has less to choose from (docs/results.md)."""
+"""The power of the local success rate in a success's weight in the learned density, the one a
+robot samples. With the cube rather than the rate itself, acting on NBP's estimates (eight
+objects, 100 held-out placements), sampled grasps succeeded 0.03 more often on average (-0.01
+to +0.13; docs/results.md)."""
+
+EXPLORATION_POWER = 1.0
+"""The same power in the density that learning draws its next trials from. Learning with the
+cube lowered the best rated of 10 by 0.02 on average (-0.09 to +0.09): its trials crowd on
+fewer grasps, and the success rates have fewer kinds of grasps to rank (docs/results.md)."""
 
 
 def local_success_rates(
@@ -354,10 +359,13 @@ class GraspLearner:
         workspace: reachability filter for the drawn grasps (None: no filter).
         c_rel: the weight offset c as a fraction of the mean proposal density at the trials.
         sigma_t, sigma_r: bandwidth of the empirical density (default: the hypothesis's).
-        reliability: the power of the success rate around every success in its weight
-            (see ``empirical_density``); the next cycles then draw near grasps that keep
-            succeeding, and the learned density is what a robot should sample from. 0 gives
-            the paper's weights.
+        reliability: the power of the success rate around every success in the weights of
+            the learned density, ``empirical``, the one a robot samples (see
+            ``empirical_density``). 0 gives the paper's weights.
+        exploration: the same power in the density the next cycle draws its trials from
+            (default: the rate itself, or ``reliability`` where that is lower); a power below
+            ``reliability`` keeps the trials on every kind of grasp that keeps succeeding,
+            for the success rates (``success_rates``) to rank.
     """
 
     def __init__(
@@ -368,16 +376,20 @@ class GraspLearner:
         sigma_t: float | None = None,
         sigma_r: float | None = None,
         reliability: float = RELIABILITY_POWER,
+        exploration: float | None = None,
     ) -> None:
         if c_rel < 0:
             raise ValueError(f"c_rel must be non-negative, got {c_rel}")
-        check_at_least(0, reliability=reliability)
+        if exploration is None:
+            exploration = min(EXPLORATION_POWER, reliability)
+        check_at_least(0, reliability=reliability, exploration=exploration)
         self.hypothesis = hypothesis
         self.workspace = workspace
         self.c_rel = c_rel
         self.sigma_t = hypothesis.sigma_t if sigma_t is None else sigma_t
         self.sigma_r = hypothesis.sigma_r if sigma_r is None else sigma_r
         self.reliability = float(reliability)
+        self.exploration = float(exploration)
         self.proposal = hypothesis
         self.proposals: list[SE3KDE] = []  # the density each cycle drew from
         self.trials = Trials()
@@ -385,14 +397,17 @@ class GraspLearner:
 
     @property
     def empirical(self) -> SE3KDE | None:
-        """The current empirical grasp density (None before the first success)."""
+        """The learned grasp density, to sample from (None before the first success)."""
+        return self._density(self.reliability)
+
+    def _density(self, reliability: float) -> SE3KDE | None:
         return empirical_density(
             self.trials,
             self.proposals,
             self.c_rel,
             self.sigma_t,
             self.sigma_r,
-            reliability=self.reliability,
+            reliability=reliability,
         )
 
     def success_rates(self, grasps: torch.Tensor) -> torch.Tensor:
@@ -429,7 +444,8 @@ class GraspLearner:
             records: if given, one record per trial is appended (see ``run_trials``).
 
         Returns:
-            the cycle's figures; the proposal is replaced by the new empirical density.
+            the cycle's figures; the proposal is replaced by the new empirical density
+            weighted for exploration.
         """
         start = time.perf_counter()
         grasps, success, reach, from_fallback = run_trials(
@@ -448,9 +464,10 @@ class GraspLearner:
         cycle = torch.where(from_fallback, 0, len(self.proposals))
         self.trials.add(grasps, success, cycle)
         self.proposals.append(self.proposal)
+        explored = self._density(self.exploration)
+        if explored is not None:
+            self.proposal = explored
         empirical = self.empirical
-        if empirical is not None:
-            self.proposal = empirical
         seconds = time.perf_counter() - start
         stats = CycleStats(
             cycle=len(self.history),
@@ -483,6 +500,7 @@ class GraspLearner:
             "sigma_t": self.sigma_t,
             "sigma_r": self.sigma_r,
             "reliability": self.reliability,
+            "exploration": self.exploration,
             "workspace": None if self.workspace is None else asdict(self.workspace),
             "history": [asdict(h) for h in self.history],
         }
@@ -493,7 +511,7 @@ class GraspLearner:
 
     @classmethod
     def load(cls, path: str | Path) -> GraspLearner:
-        """Load a learner written by ``save``; its proposal is the empirical density."""
+        """Load a learner written by ``save``, ready for its next cycle."""
         return cls.from_state_dict(load_state(path, "GraspLearner"))
 
     @classmethod
@@ -507,12 +525,14 @@ class GraspLearner:
             sigma_t=state["sigma_t"],
             sigma_r=state["sigma_r"],
             reliability=state["reliability"],
+            exploration=state["exploration"],
         )
         learner.trials = Trials(**state["trials"])
         learner.proposals = [SE3KDE.from_state_dict(p) for p in state["proposals"]]
         learner.history = [CycleStats(**h) for h in state["history"]]
-        if learner.empirical is not None:
-            learner.proposal = learner.empirical
+        explored = learner._density(learner.exploration)
+        if explored is not None:
+            learner.proposal = explored
         return learner
 
 
