@@ -90,8 +90,8 @@ def main() -> None:
         "--reliability",
         type=non_negative_float,
         default=defaults["reliability"],
-        help="power of the local success rate in a success's weight: 3 samples better, "
-        "1 ranks the best of 10 better, 0 is the paper's",
+        help="power of the local success rate in a success's weight in the learned density "
+        "(learning explores with the rate itself, or this power if lower); 0 is the paper's",
     )
     parser.add_argument("--seed", type=int, default=defaults["seed"])
     parser.add_argument("--quick", action="store_true", help="2 cycles of 10, 10 eval trials")

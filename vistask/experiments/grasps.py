@@ -125,9 +125,10 @@ class GraspExperiment:
             grasps of the box, bottle and can succeeded 0.04-0.05 more often than with 3 mm
             and 0.08 rad.
         c_rel: importance-weight offset relative to the mean proposal density.
-        reliability: the power of the local success rate in every success's weight
-            (``GraspLearner``): higher concentrates the learned density on the grasps that
-            succeed most often; 0 gives the paper's weights.
+        reliability: the power of the local success rate in every success's weight in the
+            learned density (``GraspLearner``): higher concentrates it on the grasps that
+            succeed most often; 0 gives the paper's weights. Learning draws its trials with
+            the rate itself, or this power where it is lower.
         seed: random seed of grasp draws.
         address: a Ray cluster to run the simulators on as actors (``RayGraspTrials``;
             default ``RAY_ADDRESS``); None runs them as local processes

@@ -13,9 +13,10 @@ weights alone estimate the grasp affordance, where a grasp that succeeded once b
 as much as one that succeeds every time; drawing from it succeeds as often as the hypothesis's
 successes did on average. With the rate itself, the next cycles draw near grasps that keep
 succeeding while still trying every kind of grasp that worked; with its cube, the learned
-density crowds on the most reliable ones, and is the one a robot should sample from. Where the current
-proposal has no reachable grasp for a placement (it concentrated on the grasps of one way the
-object lies), the trial draws from the hypothesis instead, and counts as its draw.
+density crowds on the most reliable ones, and is the one a robot should sample from. Where
+the current proposal has no reachable grasp for a placement (it concentrated on the grasps of
+one way the object lies), the trial draws from the hypothesis instead, and counts as its
+draw.
 
 Successes of all cycles are pooled. Cycle k drew its n_k trials from q_k, so together the
 N trials were drawn from the mixture q(g) = sum_k (n_k / N) q_k(g), and that is the q in the
