@@ -379,11 +379,9 @@ class GraspLearner:
         reliability: float = RELIABILITY_POWER,
         exploration: float | None = None,
     ) -> None:
-        if c_rel < 0:
-            raise ValueError(f"c_rel must be non-negative, got {c_rel}")
         if exploration is None:
             exploration = min(EXPLORATION_POWER, reliability)
-        check_at_least(0, reliability=reliability, exploration=exploration)
+        check_at_least(0, c_rel=c_rel, reliability=reliability, exploration=exploration)
         self.hypothesis = hypothesis
         self.workspace = workspace
         self.c_rel = c_rel
@@ -400,6 +398,12 @@ class GraspLearner:
     def empirical(self) -> SE3KDE | None:
         """The learned grasp density, to sample from (None before the first success)."""
         return self._density(self.reliability)
+
+    def _explore(self) -> None:
+        """Draw the next cycle from the successes weighted for exploration (once any)."""
+        explored = self._density(self.exploration)
+        if explored is not None:
+            self.proposal = explored
 
     def _density(self, reliability: float) -> SE3KDE | None:
         return empirical_density(
@@ -465,9 +469,7 @@ class GraspLearner:
         cycle = torch.where(from_fallback, 0, len(self.proposals))
         self.trials.add(grasps, success, cycle)
         self.proposals.append(self.proposal)
-        explored = self._density(self.exploration)
-        if explored is not None:
-            self.proposal = explored
+        self._explore()
         empirical = self.empirical
         seconds = time.perf_counter() - start
         stats = CycleStats(
@@ -531,9 +533,7 @@ class GraspLearner:
         learner.trials = Trials(**state["trials"])
         learner.proposals = [SE3KDE.from_state_dict(p) for p in state["proposals"]]
         learner.history = [CycleStats(**h) for h in state["history"]]
-        explored = learner._density(learner.exploration)
-        if explored is not None:
-            learner.proposal = explored
+        learner._explore()
         return learner
 
 
