@@ -25,12 +25,18 @@ import torch
 from scipy.cluster.vq import kmeans2
 from torch import Tensor
 
+from vistask.objects.depth import evenly_spaced
+from vistask.objects.pair_votes import PairTable
 from vistask.saving import load_state, save_state
 from vistask.se3 import SE3KDE, identity_poses, relative
 from vistask.vision import Patches
 
 MIN_PATCHES_PER_CLASS = 3
 """An appearance class needs at least this many instances to become a primitive feature."""
+
+PAIR_TABLE_PATCHES = 512
+"""Patches of a model's pair table (``ObjectModel.pair_table``): the table grows with their
+square, 0.07 s to build for 500 patches and 0.8 s for 1339 (the cereal box)."""
 
 
 @dataclass
@@ -118,6 +124,11 @@ class ObjectModel:
     grasp_density: SE3KDE | None = None
     params: dict[str, Any] = field(default_factory=dict)
     _instances: dict[int, Tensor] = field(default_factory=dict, init=False, repr=False)
+    _pair_table: PairTable | None = field(default=None, init=False, repr=False, compare=False)
+
+    def __getstate__(self) -> dict:
+        # The pair table is large (N^2 pairs) and quick to rebuild: workers make their own.
+        return {**self.__dict__, "_pair_table": None}
 
     # --- learning --------------------------------------------------------------------------
     @classmethod
@@ -241,6 +252,14 @@ class ObjectModel:
         if k not in self._instances:
             self._instances[k] = self.patches.select(self.labels == k).frames()
         return self._instances[k]
+
+    def pair_table(self) -> PairTable:
+        """Every pair of at most ``PAIR_TABLE_PATCHES`` of the model's patches (evenly spaced
+        in their order) filed by pair feature (``PairTable``), built on first use and kept."""
+        if self._pair_table is None:
+            frames = evenly_spaced(self.patches.frames(), PAIR_TABLE_PATCHES)
+            self._pair_table = PairTable(frames)
+        return self._pair_table
 
     def instance_colors(self, k: int) -> Tensor:
         """(N_k, 6) appearance descriptors of the patches of appearance class ``k``."""

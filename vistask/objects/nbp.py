@@ -14,8 +14,9 @@ Every density is an ``SE3KDE`` over world poses of a feature's frame.
   shift); each is scored by the top-down prediction of every primitive instance against the
   evidence (how much of the model the scene explains), best first. Given the depth images
   (``DepthCheck``), poses screened against the depth join the modes: poses drawn from the
-  belief, and poses that put any model patch on any scene patch, whatever their appearance
-  (other light or an unseen side can mislead the appearance, not the geometry). Each
+  belief, and poses that pairs of scene patches vote for by their geometry, whatever their
+  appearance (other light or an unseen side can mislead the appearance, not the
+  geometry; ``vistask.objects.pair_votes``). Each
   hypothesis is pulled onto the observed surfaces and its score weighted by the square of
   how much of the model the depth explains, less what it rules out.
 - Top-down: the root's belief is pushed down through the potentials (X_c = X_p ∘ r) and
@@ -44,8 +45,9 @@ NORMAL_TOLERANCE = 0.5
 WIDER_CLASSES = 2.0
 """Factor on the appearance classes' radii when too few scene patches fall within them."""
 
-_HALF_TURN = torch.tensor([0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0])
-"""A half turn about z (pose [t, q XYZW]): a patch frame turned about its normal."""
+VOTED_POSES = 32
+"""Poses most voted for by patch pairs (``PairTable.vote``) that are screened against the
+depth images."""
 
 
 def _normals(frames: Tensor) -> Tensor:
@@ -134,32 +136,6 @@ def scene_evidence(
             density = SE3KDE(frames[mine], sigma_t=sigma_t, sigma_r=sigma_r)
             out[i] = Evidence(density, colors[mine])
     return out
-
-
-def patch_pair_poses(
-    model_frames: Tensor, scene_frames: Tensor, n: int, generator: torch.Generator
-) -> Tensor:
-    """``n`` object poses, each putting a model patch on a scene patch, drawn at random.
-
-    A patch's direction follows its colour gradient, which another light can reverse, so
-    half of the draws put the model patch turned by half a turn about its normal.
-
-    Args:
-        model_frames: (N, 7) object-frame frames of the model's patches.
-        scene_frames: (M, 7) world frames of the scene's patches.
-        n: number of draws (uniform over model patch, scene patch and turn).
-        generator: the draws' generator (its device is the result's).
-
-    Returns:
-        (n, 7) world poses X = s ∘ inverse(m).
-    """
-    device = generator.device
-    i = torch.randint(len(scene_frames), (n,), generator=generator, device=device)
-    j = torch.randint(len(model_frames), (n,), generator=generator, device=device)
-    model = model_frames.to(device)[j]
-    turned = torch.arange(n, device=device) % 2 == 1
-    model[turned] = compose(model[turned], _HALF_TURN.to(device).expand(int(turned.sum()), 7))
-    return compose(scene_frames.to(device)[i], inverse(model))
 
 
 def _matched(evidence: dict[int, Evidence | None]) -> int:
@@ -257,9 +233,11 @@ class NBP:
             instances, or ambiguous poses).
         depth_draws: with depth images, poses drawn from the object belief and screened
             against them; the ``n_modes`` best join the modes as hypotheses.
-        pair_draws: with depth images, poses putting a model patch on a scene patch,
-            whatever their appearance (``patch_pair_poses``), screened against them; the
-            ``n_modes`` best join the hypotheses too.
+        pair_references: with depth images, scene patches that pair with their neighbours
+            to vote for poses by the pairs' geometry, whatever their appearance
+            (``vistask.objects.pair_votes``); the ``VOTED_POSES`` most voted are screened
+            against the depth images and the ``n_modes`` best join the hypotheses too. 0
+            disables the votes.
         mode_starts: mean-shift starts for the modes.
         refine_sigma_t: position scale (metres) of the final top-down refinement; 0 disables.
         refine_iters: iterations of that refinement.
@@ -288,7 +266,7 @@ class NBP:
         cutoff: float | None = None,
         n_modes: int = 4,
         depth_draws: int = 128,
-        pair_draws: int = 256,
+        pair_references: int = 20,
         mode_starts: int = 48,
         refine_sigma_t: float = 0.006,
         refine_iters: int = 3,
@@ -309,7 +287,7 @@ class NBP:
             floor=floor,
             refine_sigma_t=refine_sigma_t,
             depth_draws=depth_draws,
-            pair_draws=pair_draws,
+            pair_references=pair_references,
             min_matches=min_matches,
         )
         if cutoff is not None and not cutoff > 0:
@@ -325,7 +303,7 @@ class NBP:
         self.cutoff = cutoff
         self.n_modes = n_modes
         self.depth_draws = depth_draws
-        self.pair_draws = pair_draws
+        self.pair_references = pair_references
         self.mode_starts = mode_starts
         self.refine_sigma_t = refine_sigma_t
         self.refine_iters = refine_iters
@@ -407,16 +385,19 @@ class NBP:
         if depth is not None:
             # Modes follow the votes; a target mostly hidden among lookalikes gets few, and
             # one under other light or tipped onto an unseen side gets misleading ones. Poses
-            # the depth supports are also taken from the belief's particles and from pairs
-            # of patches whatever their appearance.
+            # the depth supports are also taken from the belief's particles and from the
+            # votes of patch pairs, whatever their appearance.
             from_belief = object_belief.points[:0]
             if self.depth_draws:
                 weights = object_belief.weights
                 i = torch.multinomial(weights, self.depth_draws, True, generator=gen)
                 from_belief = object_belief.points[i]
-            pairs = patch_pair_poses(model.patches.frames(), patches.frames(), self.pair_draws, gen)
+            voted = object_belief.points[:0]
+            if self.pair_references:
+                table = model.pair_table()
+                voted, _ = table.vote(patches.frames(), self.pair_references, VOTED_POSES, gen)
             screen = evenly_spaced(points, SCREEN_POINTS)
-            for draws in (from_belief, pairs):
+            for draws in (from_belief, voted):
                 fit = depth.weights(draws.cpu(), screen)
                 best = torch.argsort(fit, descending=True)[: self.n_modes].to(device)
                 candidates = torch.cat([candidates, draws[best]])
