@@ -160,11 +160,11 @@ class DepthCheck:
         surface, at least ``MIN_IN_SIGHT`` of those projecting into it."""
         world = apply(poses.float()[:, None], points.float())
         matches = self.match(world)
-        inside = sum(inside.sum(dim=-1) for _, _, inside, _, _ in matches)
+        in_view = sum(inside.sum(dim=-1) for _, _, inside, _, _ in matches)
         hidden = sum(hidden.sum(dim=-1) for *_, hidden in matches)
         explained = sum((dist < self.tolerance).sum(dim=-1) for _, dist, *_ in matches)
-        in_sight = torch.maximum(inside - hidden, (MIN_IN_SIGHT * inside).ceil()).clamp_min(1)
-        violated = sum(free.sum(dim=-1) for *_, free, _ in matches) / inside.clamp_min(1)
+        in_sight = torch.maximum(in_view - hidden, (MIN_IN_SIGHT * in_view).ceil()).clamp_min(1)
+        violated = sum(free.sum(dim=-1) for *_, free, _ in matches) / in_view.clamp_min(1)
         if self.floor_z is not None:
             violated = violated + (world[..., 2] < self.floor_z - self.tolerance).float().mean(-1)
         return explained / in_sight * (1.0 - 2.0 * violated).clamp_min(0.0)

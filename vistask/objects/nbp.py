@@ -15,10 +15,10 @@ Every density is an ``SE3KDE`` over world poses of a feature's frame.
   evidence (how much of the model the scene explains), best first. Given the depth images
   (``DepthCheck``), poses screened against the depth join the modes: poses drawn from the
   belief, and poses that pairs of scene patches vote for by their geometry, whatever their
-  appearance (other light or an unseen side can mislead the appearance, not the
-  geometry; ``vistask.objects.pair_votes``). Each
-  hypothesis is pulled onto the observed surfaces and its score weighted by the square of
-  how much of the model the depth explains, less what it rules out.
+  appearance (``vistask.objects.pair_votes``: other light or an unseen side can mislead the
+  appearance, not the geometry). Each hypothesis is pulled onto the observed surfaces and its
+  score weighted by the square of how much of the model the depth explains, less what it
+  rules out.
 - Top-down: the root's belief is pushed down through the potentials (X_c = X_p ∘ r) and
   reweighted by each child's bottom-up belief (meta) or evidence (primitive), which gives a
   belief for every feature.

