@@ -25,7 +25,7 @@ import torch
 from torch import Tensor
 
 from vistask.checks import check_at_least
-from vistask.se3 import compose, inverse
+from vistask.se3 import compose, inverse, make_poses
 
 DISTANCE_STEP_M = 0.008
 """Bin of the pair distance (metres), twice the spacing of a model's patches (4 mm voxels).
@@ -38,7 +38,6 @@ TURN_BINS = 30
 """Bins of the turn about the reference patch's normal (12 degrees each)."""
 PEAKS_PER_REFERENCE = 2
 """Cells each reference patch proposes (in the same clutter scenes, 4 found no more: 40)."""
-_Z = torch.tensor([0.0, 0.0, 1.0])
 
 
 def pair_features(a: Tensor, b: Tensor) -> tuple[Tensor, Tensor, Tensor]:
@@ -52,21 +51,14 @@ def pair_features(a: Tensor, b: Tensor) -> tuple[Tensor, Tensor, Tensor]:
         normal and that line, and the two normals; turn (P,) the angle of b's position in the
         xy plane of a's frame.
     """
-    ra = roma.unitquat_to_rotmat(a[:, 3:])
-    na, nb = ra[:, :, 2], roma.quat_action(b[:, 3:], _Z.to(b).expand(len(b), 3), True)
+    ra, rb = roma.unitquat_to_rotmat(a[:, 3:]), roma.unitquat_to_rotmat(b[:, 3:])
+    na, nb = ra[:, :, 2], rb[:, :, 2]
     d = b[:, :3] - a[:, :3]
     distance = d.norm(dim=-1)
     u = d / distance.clamp_min(1e-9)[:, None]
     cosines = torch.stack([(na * u).sum(-1), (nb * u).sum(-1), (na * nb).sum(-1)], dim=-1)
     local = (ra.transpose(1, 2) @ d[:, :, None])[:, :, 0]
     return distance, cosines.clamp(-1.0, 1.0).acos(), torch.atan2(local[:, 1], local[:, 0])
-
-
-def _turn_about_z(angle: Tensor) -> Tensor:
-    """(K,) angles -> (K, 7) poses turning about z."""
-    pose = torch.zeros(len(angle), 7, dtype=angle.dtype, device=angle.device)
-    pose[:, 5], pose[:, 6] = torch.sin(angle / 2), torch.cos(angle / 2)
-    return pose
 
 
 class PairTable:
@@ -166,6 +158,10 @@ class PairTable:
         best = best[peaks[best] > 0]
         angle = (cells[best] % TURN_BINS + 0.5) * (2 * math.pi / TURN_BINS)
         model_patch = self.frames.to(scene)[cells[best] // TURN_BINS]
-        turned = compose(model_patch, _turn_about_z(angle.to(scene)))
+        about_z = torch.zeros(len(angle), 3, dtype=scene.dtype, device=scene.device)
+        about_z[:, 2] = angle
+        turned = compose(
+            model_patch, make_poses(torch.zeros_like(about_z), roma.rotvec_to_unitquat(about_z))
+        )
         poses = compose(scene[references[owner[best]]], inverse(turned))
         return poses, peaks[best].to(scene)
