@@ -184,3 +184,26 @@ def test_points_hidden_behind_other_surfaces_are_not_held_against_a_pose() -> No
     ((_, dist, inside, _, hidden),) = walled.match(points)
     assert (dist < walled.tolerance).sum() < 0.4 * inside.sum()  # most of its points are hidden
     assert hidden.sum() > 0.5 * inside.sum()
+
+
+def test_a_target_showing_a_few_patches_beside_lookalikes_is_found_by_its_region(
+    check: DepthCheck,
+) -> None:
+    # Six patches of the box's corner show; two whole lookalikes stand on the table where
+    # the depth images see nothing. Their patches outvote the corner's in the scene's
+    # belief; searched on its own, the corner's region gives the box's pose.
+    box = _box_patches()
+    model = ObjectModel.learn(box, "box", n_classes=5)
+    corner = torch.tensor([HALF[0], -HALF[1], 2 * HALF[2]])
+    seen = box.select(torch.argsort((box.positions - corner).norm(dim=1))[:6])
+    lookalikes = [
+        Patches(box.positions + shift, box.directions, box.colors, box.normals)
+        for shift in (torch.tensor([0.25, 0.2, 0.0]), torch.tensor([-0.25, 0.2, 0.0]))
+    ]
+    scene = Patches.cat([seen, *lookalikes])
+    for regions, found in ((0, False), (6, True)):
+        nbp = NBP(n_particles=400, mode_starts=24, regions=regions)
+        for seed in range(3):
+            pose = nbp.infer(model, scene, seed=seed, depth=check).pose
+            err_t, err_r = pose_error(pose, TRUTH)
+            assert bool(err_t < 0.005 and err_r < 3.0) == found

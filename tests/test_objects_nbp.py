@@ -6,7 +6,7 @@ import pytest
 import torch
 
 from vistask.objects import NBP, ObjectModel, appearance_descriptors, multiply, push_up
-from vistask.objects.nbp import SceneMatch, scene_evidence
+from vistask.objects.nbp import SceneMatch, link_groups, scene_evidence
 from vistask.objects.synthetic import synthetic_object, synthetic_scene
 from vistask.se3 import SE3KDE, compose, inverse, kernels, random_poses, rotation_distance
 from vistask.vision import Patches, pose_error
@@ -159,3 +159,18 @@ def test_bad_arguments_are_named_in_the_error() -> None:
         NBP(min_matches=-1)
     with pytest.raises(ValueError, match="pair_references must be >= 0, got -1"):
         NBP(pair_references=-1)
+
+
+def test_link_groups_join_chains_of_near_points_as_a_brute_force_does() -> None:
+    g = torch.Generator().manual_seed(4)
+    points = torch.rand(120, 3, generator=g) * 0.2
+    groups = link_groups(points, 0.03)
+    near = torch.cdist(points, points) < 0.03
+    for start in range(len(points)):  # breadth-first search from every point
+        reached, frontier = {start}, [start]
+        while frontier:
+            frontier = [j for i in frontier for j in torch.nonzero(near[i])[:, 0].tolist()]
+            frontier = [j for j in frontier if j not in reached]
+            reached.update(frontier)
+        assert groups[start] == min(reached)
+    assert 1 < len(torch.unique(groups)) < len(points)

@@ -69,6 +69,28 @@ def test_the_most_voted_pose_puts_the_model_where_it_lies_among_clutter() -> Non
     assert err_t < 0.01 and err_r < 360 / TURN_BINS
 
 
+def test_references_drawn_among_preferred_patches_find_a_model_that_few_patches_show() -> None:
+    model = _frames(120, 6, spread=0.04)
+    truth = _frames(1, 7, spread=0.3)[0]
+    seen = compose(truth.expand(30, 7), model[:30])  # a quarter of the object in view
+    clutter = _frames(600, 8, spread=0.15)  # twenty times as many patches elsewhere
+    scene = torch.cat([clutter, seen])
+    prefer = torch.zeros(len(scene), dtype=torch.bool)
+    prefer[-40:] = True  # the object's patches and ten of the clutter's
+    table = PairTable(model)
+
+    def found(preferred: torch.Tensor | None) -> int:
+        right = 0
+        for seed in range(5):
+            poses, _ = table.vote(scene, 2, 4, torch.Generator().manual_seed(seed), preferred)
+            err_t, err_r = pose_error(poses[0], truth)
+            right += bool(err_t < 0.015 and err_r < 360 / TURN_BINS)
+        return right
+
+    # One reference of two is drawn among the 40 preferred, 30 of them on the object.
+    assert found(prefer) >= 4 and found(None) == 0
+
+
 def test_a_scene_without_matching_pairs_votes_for_nothing() -> None:
     model = _frames(10, 9, spread=0.01)
     far_apart = _frames(2, 10)

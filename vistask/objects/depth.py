@@ -126,7 +126,7 @@ class DepthCheck:
             out.append((closest, dist, inside, free, hidden))
         return out
 
-    def refine(self, poses: Tensor, points: Tensor, iters: int = 4) -> Tensor:
+    def refine(self, poses: Tensor, points: Tensor, iters: int = 3) -> Tensor:
         """Pull poses onto the observed surfaces: at each scale of ``REFINE_SCALES_M``,
         ``iters`` times, the model points within that distance of their nearest observed
         point (in any view) are fitted rigidly onto them (weighted Kabsch).
@@ -158,6 +158,12 @@ class DepthCheck:
         observed surface, times max(0, 1 - 2 v), v the share in free space plus the share
         below the floor. In sight: projecting into the view and not hidden behind an observed
         surface, at least ``MIN_IN_SIGHT`` of those projecting into it."""
+        return self.explain(poses, points)[0]
+
+    def explain(self, poses: Tensor, points: Tensor) -> tuple[Tensor, Tensor]:
+        """(H, 7) poses, (N, 3) object-frame model points -> (H,) ``weights`` and (H,) the
+        number of model points (one count per view) within ``tolerance`` of an observed
+        surface."""
         world = apply(poses.float()[:, None], points.float())
         matches = self.match(world)
         in_view = sum(inside.sum(dim=-1) for _, _, inside, _, _ in matches)
@@ -167,4 +173,4 @@ class DepthCheck:
         violated = sum(free.sum(dim=-1) for *_, free, _ in matches) / in_view.clamp_min(1)
         if self.floor_z is not None:
             violated = violated + (world[..., 2] < self.floor_z - self.tolerance).float().mean(-1)
-        return explained / in_sight * (1.0 - 2.0 * violated).clamp_min(0.0)
+        return explained / in_sight * (1.0 - 2.0 * violated).clamp_min(0.0), explained

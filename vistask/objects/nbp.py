@@ -14,11 +14,13 @@ Every density is an ``SE3KDE`` over world poses of a feature's frame.
   shift); each is scored by the top-down prediction of every primitive instance against the
   evidence (how much of the model the scene explains), best first. Given the depth images
   (``DepthCheck``), poses screened against the depth join the modes: poses drawn from the
-  belief, and poses that pairs of scene patches vote for by their geometry, whatever their
+  belief, poses that pairs of scene patches vote for by their geometry, whatever their
   appearance (``vistask.objects.pair_votes``: other light or an unseen side can mislead the
-  appearance, not the geometry). Each hypothesis is pulled onto the observed surfaces and its
-  score weighted by the square of how much of the model the depth explains, less what it
-  rules out.
+  appearance, not the geometry), and the modes of regions of matching patches searched on
+  their own (a target that shows a few patches among lookalikes leads no mode of the whole
+  scene). Each hypothesis is pulled onto the observed surfaces and its score weighted by the
+  square of how much of the model the depth explains, less what it rules out, and by how
+  many of its points the depth explains against the best hypothesis.
 - Top-down: the root's belief is pushed down through the potentials (X_c = X_p ∘ r) and
   reweighted by each child's bottom-up belief (meta) or evidence (primitive), which gives a
   belief for every feature.
@@ -48,6 +50,29 @@ WIDER_CLASSES = 2.0
 VOTED_POSES = 32
 """Poses most voted for by patch pairs (``PairTable.vote``) that are screened against the
 depth images."""
+
+MODE_ITERATIONS = 10
+"""Mean-shift iterations of the object belief's modes."""
+
+TYPICAL_PARTICLES = 256
+"""A message's typical value (``multiply``'s floor) is the median over this many of its
+particles."""
+
+REGION_LINK_M = 0.015
+"""Scene patches that match the model's appearance and lie within this of each other (in
+chains) form one region (``link_groups``)."""
+
+REGION_RADIUS_M = 0.06
+"""A region's search takes the matching patches within this of its centre."""
+
+MIN_REGION_PATCHES = 3
+"""Smaller regions are not searched on their own."""
+
+REGION_PARTICLES = 250
+"""Particles per message and belief of a region's search."""
+
+REGION_MODES = 2
+"""Modes of each region's object belief that become pose candidates."""
 
 
 def _normals(frames: Tensor) -> Tensor:
@@ -206,10 +231,32 @@ def multiply(
     values = torch.stack([m.evaluate(x, cutoff=cutoff) for m in messages])  # (C, n)
     log_w = -values.mean(dim=0).clamp_min(1e-30).log()
     for m, v in zip(messages, values, strict=True):
-        typical = m.evaluate(m.points, cutoff=cutoff).median() if floor > 0 else 0.0
+        own = evenly_spaced(m.points, TYPICAL_PARTICLES)
+        typical = m.evaluate(own, cutoff=cutoff).median() if floor > 0 else 0.0
         log_w = log_w + (v + floor * typical).clamp_min(1e-30).log()
     w = torch.softmax(log_w, dim=0)
     return SE3KDE(x, w.to(device), sigma_t=first.sigma_t, sigma_r=first.sigma_r)
+
+
+def link_groups(positions: Tensor, link: float) -> Tensor:
+    """Groups of points joined by chains of steps shorter than ``link`` (single linkage).
+
+    Args:
+        positions: (M, 3) points.
+        link: metres.
+
+    Returns:
+        (M,) the group of each point, named by its smallest point index.
+    """
+    near = torch.cdist(positions, positions) < link
+    label = torch.arange(len(positions), device=positions.device)
+    while True:
+        # Each point takes the smallest label among its neighbours (itself included) until
+        # every group carries its smallest index.
+        new = torch.where(near, label[None, :], len(positions)).amin(dim=1)
+        if torch.equal(new, label):
+            return label
+        label = new
 
 
 class NBP:
@@ -238,6 +285,11 @@ class NBP:
             (``vistask.objects.pair_votes``); the ``VOTED_POSES`` most voted are screened
             against the depth images and the ``n_modes`` best join the hypotheses too. 0
             disables the votes.
+        regions: with depth images, the largest regions of scene patches that match the
+            model's appearance (``link_groups``) searched on their own: a target that shows
+            a few patches among lookalikes gets no mode of the whole scene's belief, but
+            leads its region's. The modes of each region's belief are screened against the
+            depth images and the ``n_modes`` best join the hypotheses. 0 disables them.
         mode_starts: mean-shift starts for the modes.
         refine_sigma_t: position scale (metres) of the final top-down refinement; 0 disables.
         refine_iters: iterations of that refinement.
@@ -267,6 +319,7 @@ class NBP:
         n_modes: int = 4,
         depth_draws: int = 128,
         pair_references: int = 20,
+        regions: int = 6,
         mode_starts: int = 48,
         refine_sigma_t: float = 0.006,
         refine_iters: int = 3,
@@ -288,6 +341,7 @@ class NBP:
             refine_sigma_t=refine_sigma_t,
             depth_draws=depth_draws,
             pair_references=pair_references,
+            regions=regions,
             min_matches=min_matches,
         )
         if cutoff is not None and not cutoff > 0:
@@ -304,6 +358,7 @@ class NBP:
         self.n_modes = n_modes
         self.depth_draws = depth_draws
         self.pair_references = pair_references
+        self.regions = regions
         self.mode_starts = mode_starts
         self.refine_sigma_t = refine_sigma_t
         self.refine_iters = refine_iters
@@ -342,16 +397,75 @@ class NBP:
         patches = patches.to(device)
         sigmas = (self.evidence_sigma_t, self.evidence_sigma_r)
         evidence = scene_evidence(model, patches, *sigmas, device)
-        matched = _matched(evidence)
+        matched, radius_scale = _matched(evidence), 1.0
         appearance_counts = matched >= self.min_matches
         if not appearance_counts:
             wider = scene_evidence(model, patches, *sigmas, device, radius_scale=WIDER_CLASSES)
             if _matched(wider) > matched:
-                evidence = wider
+                evidence, radius_scale = wider, WIDER_CLASSES
         if all(e is None for e in evidence.values()):
             raise ValueError(f"no scene patch matches the appearance of {model.name!r}")
 
         n, sigma_t, sigma_r = self.n_particles, self.sigma_t, self.sigma_r
+        messages, beliefs = self._bottom_up(model, evidence, n, gen)
+        object_belief = self._object_belief(model, beliefs[model.root])
+        candidates, _ = object_belief.modes(
+            k=self.n_modes, n_starts=self.mode_starts, n_iter=MODE_ITERATIONS, generator=gen
+        )
+        points = model.patches.positions.cpu()
+        if depth is not None:
+            # Modes follow the votes; a target mostly hidden among lookalikes gets few, and
+            # one under other light or tipped onto an unseen side gets misleading ones. Poses
+            # the depth supports are also taken from the belief's particles, from the votes
+            # of patch pairs, whatever their appearance, and from the beliefs of regions.
+            sources = []
+            if self.depth_draws:
+                weights = object_belief.weights
+                i = torch.multinomial(weights, self.depth_draws, True, generator=gen)
+                sources.append(object_belief.points[i])
+            if self.pair_references:
+                table = model.pair_table()
+                prefer = model.classify(patches.colors.cpu(), radius_scale) >= 0
+                voted, _ = table.vote(
+                    patches.frames(), self.pair_references, VOTED_POSES, gen, prefer
+                )
+                sources.append(voted)
+            if self.regions:
+                sources.append(self._region_modes(model, evidence, gen))
+            screen = evenly_spaced(points, SCREEN_POINTS)
+            for draws in sources:
+                fit = depth.weights(draws.cpu(), screen)
+                best = torch.argsort(fit, descending=True)[: self.n_modes].to(device)
+                candidates = torch.cat([candidates, draws[best]])
+        match = SceneMatch.build(model, evidence, self.color_sigma)
+        if self.refine_sigma_t > 0:
+            candidates = match.refine(candidates, self.refine_sigma_t, self.refine_iters)
+        if depth is not None:
+            candidates = depth.refine(candidates.cpu(), points).to(device)
+        scores = match.support(candidates, self.evidence_sigma_t, self.evidence_sigma_r)
+        if depth is not None:
+            # Squared: what the depth explains outweighs the appearance, which other light
+            # or an unseen side leaves weak; with too few matches the depth decides alone.
+            # Of poses that explain their points in sight alike, the one explaining more of
+            # the observed surface wins: a box turned a quarter turn behind an occluder
+            # explains what shows of it, the true box more.
+            fit, explained = (x.to(device) for x in depth.explain(candidates.cpu(), points))
+            scores = scores * fit**2 if appearance_counts else fit
+            scores = scores * explained / explained.max().clamp_min(1)
+        order = torch.argsort(scores, descending=True)
+        result = NBPResult(
+            candidates[order], scores[order], object_belief, messages, beliefs, evidence
+        )
+        if self.top_down:
+            result.beliefs.update(top_down(model, result, n, sigma_t, sigma_r, self.cutoff, gen))
+        return result
+
+    def _bottom_up(
+        self, model: ObjectModel, evidence: dict[int, Evidence | None], n: int, gen
+    ) -> tuple[dict[int, SE3KDE | None], dict[int, SE3KDE]]:
+        """Bottom-up pass with ``n`` particles: every feature's message to its parent (None
+        without evidence), and the beliefs of the meta-features that get a message."""
+        sigma_t, sigma_r = self.sigma_t, self.sigma_r
         messages: dict[int, SE3KDE | None] = {}
         beliefs: dict[int, SE3KDE] = {}
         for i in model.leaves():
@@ -372,53 +486,48 @@ class NBP:
             messages[i] = (
                 None if pot is None else push_up(beliefs[i], pot, n, sigma_t, sigma_r, gen)
             )
+        return messages, beliefs
 
-        root = beliefs[model.root]
-        to_object = inverse(model.features[model.root].frame.to(device))
-        object_belief = SE3KDE(
-            compose(root.points, to_object), root.weights, sigma_t=sigma_t, sigma_r=sigma_r
+    def _object_belief(self, model: ObjectModel, root: SE3KDE) -> SE3KDE:
+        """The root feature's belief mapped to the pose of the object frame."""
+        to_object = inverse(model.features[model.root].frame.to(root.device))
+        return SE3KDE(
+            compose(root.points, to_object),
+            root.weights,
+            sigma_t=self.sigma_t,
+            sigma_r=self.sigma_r,
         )
-        candidates, _ = object_belief.modes(
-            k=self.n_modes, n_starts=self.mode_starts, generator=gen
-        )
-        points = model.patches.positions.cpu()
-        if depth is not None:
-            # Modes follow the votes; a target mostly hidden among lookalikes gets few, and
-            # one under other light or tipped onto an unseen side gets misleading ones. Poses
-            # the depth supports are also taken from the belief's particles and from the
-            # votes of patch pairs, whatever their appearance.
-            from_belief = object_belief.points[:0]
-            if self.depth_draws:
-                weights = object_belief.weights
-                i = torch.multinomial(weights, self.depth_draws, True, generator=gen)
-                from_belief = object_belief.points[i]
-            voted = object_belief.points[:0]
-            if self.pair_references:
-                table = model.pair_table()
-                voted, _ = table.vote(patches.frames(), self.pair_references, VOTED_POSES, gen)
-            screen = evenly_spaced(points, SCREEN_POINTS)
-            for draws in (from_belief, voted):
-                fit = depth.weights(draws.cpu(), screen)
-                best = torch.argsort(fit, descending=True)[: self.n_modes].to(device)
-                candidates = torch.cat([candidates, draws[best]])
-        match = SceneMatch.build(model, evidence, self.color_sigma)
-        if self.refine_sigma_t > 0:
-            candidates = match.refine(candidates, self.refine_sigma_t, self.refine_iters)
-        if depth is not None:
-            candidates = depth.refine(candidates.cpu(), points).to(device)
-        scores = match.support(candidates, self.evidence_sigma_t, self.evidence_sigma_r)
-        if depth is not None:
-            # Squared: what the depth explains outweighs the appearance, which other light
-            # or an unseen side leaves weak; with too few matches the depth decides alone.
-            fit = depth.weights(candidates.cpu(), points).to(device)
-            scores = scores * fit**2 if appearance_counts else fit
-        order = torch.argsort(scores, descending=True)
-        result = NBPResult(
-            candidates[order], scores[order], object_belief, messages, beliefs, evidence
-        )
-        if self.top_down:
-            result.beliefs.update(top_down(model, result, n, sigma_t, sigma_r, self.cutoff, gen))
-        return result
+
+    def _region_modes(
+        self, model: ObjectModel, evidence: dict[int, Evidence | None], gen
+    ) -> Tensor:
+        """(K, 7) object poses: the ``REGION_MODES`` modes of the object belief of each of
+        the ``regions`` largest regions of matched patches, computed from the evidence
+        within ``REGION_RADIUS_M`` of the region's centre alone."""
+        observed = torch.cat([e.density.points for e in evidence.values() if e is not None])
+        positions = observed[:, :3]
+        group = link_groups(positions, REGION_LINK_M)
+        sizes = torch.bincount(group, minlength=len(group))
+        large = torch.nonzero(sizes >= MIN_REGION_PATCHES)[:, 0]
+        large = large[torch.argsort(sizes[large], descending=True)][: self.regions]
+        out = [observed[:0]]
+        for g in large.tolist():
+            centre = positions[group == g].mean(dim=0)
+            local: dict[int, Evidence | None] = dict.fromkeys(evidence)
+            for i, ev in evidence.items():
+                if ev is None:
+                    continue
+                d = ev.density
+                keep = (d.points[:, :3] - centre).norm(dim=-1) < REGION_RADIUS_M
+                if keep.any():
+                    near = SE3KDE(d.points[keep], sigma_t=d.sigma_t, sigma_r=d.sigma_r)
+                    local[i] = Evidence(near, ev.colors[keep])
+            _, beliefs = self._bottom_up(model, local, REGION_PARTICLES, gen)
+            if model.root in beliefs:
+                belief = self._object_belief(model, beliefs[model.root])
+                modes, _ = belief.modes(REGION_MODES, n_starts=8, n_iter=5, generator=gen)
+                out.append(modes)
+        return torch.cat(out)
 
 
 @dataclass

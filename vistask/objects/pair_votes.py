@@ -131,7 +131,12 @@ class PairTable:
         return torch.bincount(cell, minlength=r * n * TURN_BINS).view(r, n, TURN_BINS)
 
     def vote(
-        self, scene: Tensor, n_references: int, k: int, generator: torch.Generator
+        self,
+        scene: Tensor,
+        n_references: int,
+        k: int,
+        generator: torch.Generator,
+        prefer: Tensor | None = None,
     ) -> tuple[Tensor, Tensor]:
         """The ``k`` object poses most voted for by pairs of scene patches.
 
@@ -142,6 +147,9 @@ class PairTable:
             k: poses returned at most; each reference proposes its ``PEAKS_PER_REFERENCE``
                 best cells.
             generator: the draw of the references.
+            prefer: (M,) bool, patches likelier to lie on the object (their appearance
+                matches it): up to half of the references are drawn among them, the rest
+                among the others.
 
         Returns:
             (K, 7) world object poses and (K,) their votes, most voted first (K <= k; none
@@ -149,6 +157,10 @@ class PairTable:
         """
         check_at_least(1, n_references=n_references, k=k)
         references = torch.randperm(len(scene), generator=generator, device=generator.device)
+        if prefer is not None:
+            preferred = prefer.to(references.device)[references]
+            n_preferred = min(n_references // 2, int(preferred.sum()))
+            references = torch.cat([references[preferred][:n_preferred], references[~preferred]])
         references = references[:n_references].to(scene.device)
         votes = self.votes(scene, references).flatten(1)
         peaks, cells = votes.topk(min(PEAKS_PER_REFERENCE, votes.shape[1]), dim=1)
