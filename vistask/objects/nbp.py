@@ -461,7 +461,11 @@ class NBP:
         return result
 
     def _bottom_up(
-        self, model: ObjectModel, evidence: dict[int, Evidence | None], n: int, gen
+        self,
+        model: ObjectModel,
+        evidence: dict[int, Evidence | None],
+        n: int,
+        gen: torch.Generator,
     ) -> tuple[dict[int, SE3KDE | None], dict[int, SE3KDE]]:
         """Bottom-up pass with ``n`` particles: every feature's message to its parent (None
         without evidence), and the beliefs of the meta-features that get a message."""
@@ -499,7 +503,7 @@ class NBP:
         )
 
     def _region_modes(
-        self, model: ObjectModel, evidence: dict[int, Evidence | None], gen
+        self, model: ObjectModel, evidence: dict[int, Evidence | None], gen: torch.Generator
     ) -> Tensor:
         """(K, 7) object poses: the ``REGION_MODES`` modes of the object belief of each of
         the ``regions`` largest regions of matched patches, computed from the evidence
@@ -517,14 +521,14 @@ class NBP:
             for i, ev in evidence.items():
                 if ev is None:
                     continue
-                d = ev.density
-                keep = (d.points[:, :3] - centre).norm(dim=-1) < REGION_RADIUS_M
+                frames, sigmas = ev.density.points, (ev.density.sigma_t, ev.density.sigma_r)
+                keep = (frames[:, :3] - centre).norm(dim=-1) < REGION_RADIUS_M
                 if keep.any():
-                    near = SE3KDE(d.points[keep], sigma_t=d.sigma_t, sigma_r=d.sigma_r)
-                    local[i] = Evidence(near, ev.colors[keep])
+                    local[i] = Evidence(SE3KDE(frames[keep], None, *sigmas), ev.colors[keep])
             _, beliefs = self._bottom_up(model, local, REGION_PARTICLES, gen)
             if model.root in beliefs:
                 belief = self._object_belief(model, beliefs[model.root])
+                # A region's belief has few particles and modes: a short search finds them.
                 modes, _ = belief.modes(REGION_MODES, n_starts=8, n_iter=5, generator=gen)
                 out.append(modes)
         return torch.cat(out)
