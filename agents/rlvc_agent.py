@@ -68,7 +68,9 @@ class RLVCAgent(VisualAgent):
             classes with close values and interchangeable greedy actions, then drop the
             features whose absence leaves every percept seen a good action (with compounds:
             only where it keeps them among interchangeable classes); splits take a feature
-            the classes already test when it does half as well as the best (False: a
+            the classes already test when it does half as well as the best; when ``learn``
+            ends, the merged classes are grown again as one decision tree over the features
+            they test (``RLVC.regrow``), which classifies unseen percepts better (False: a
             decision tree that only splits, on the best feature).
         compact_every: with ``compaction``, merge every this many stages as well (None:
             only when the stages of a database end).
@@ -153,6 +155,10 @@ class RLVCAgent(VisualAgent):
         greedy = self._greedy(presence)
         explore = rng.random(len(greedy)) < self.epsilon
         return np.where(explore, rng.integers(self.rlvc.n_actions, size=len(greedy)), greedy)
+
+    def _end_databases(self) -> None:
+        if self.compaction:
+            self.rlvc.regrow(self.database)
 
     def _extra_params(self) -> dict:
         return {

@@ -124,6 +124,9 @@ class VisualAgent(SB3Model):
         """The subclass's own constructor arguments, for ``save``."""
         return {}
 
+    def _end_databases(self) -> None:
+        """Called once the stages of a ``learn`` call's last database have run."""
+
     # -- env --------------------------------------------------------------------------------
     def set_env(self, env: gym.Env) -> None:
         """Use ``env`` from now on; a learned agent checks that its spaces are the ones it
@@ -212,6 +215,7 @@ class VisualAgent(SB3Model):
                     "plan": {"sizes": sizes},
                 }
                 save_state(checkpoint, type(self).__name__, state)
+        self._end_databases()
         self._end_learning(callback)
         return self
 

@@ -13,6 +13,7 @@ from vistask.rlvc import (
     interchangeable,
     merge_groups,
 )
+from vistask.rlvc.compaction import induced_splits
 from vistask.rlvc.solver import state_values
 
 
@@ -328,3 +329,53 @@ def test_rlvc_merges_on_when_its_classes_outgrow_the_bdd(monkeypatch):
     assert sum(r.merged for r in bdd.history) > 0 and bdd.n_classes < tree.n_classes
     faces = torch.eye(db.n_features, dtype=torch.bool)[:8]  # both faces of states 0..3
     assert bdd.greedy(faces).tolist() == [1] * 8
+
+
+def test_induced_splits_keep_every_percept_in_its_class_and_test_only_the_features_given():
+    rng = np.random.default_rng(20)
+    _, labelling = random_splits(12, 25, seed=20)
+    groups = torch.from_numpy(rng.integers(0, 6, labelling.n_classes))
+    labelling.merge(torch.unique(groups, return_inverse=True)[1])
+    presence = torch.from_numpy(rng.random((500, 30)) < 0.3)  # features 12..29 are noise
+    classes = labelling.classify(presence[:, :12])
+    classes = torch.unique(classes, return_inverse=True)[1]
+    features = sorted(labelling.selected_features)
+    splits, groups = induced_splits(presence, classes, features)
+    assert {f for _, f in splits} <= set(features)
+    induced = ClassBDD.from_splits(30, splits, groups)
+    assert torch.equal(induced.classify(presence), classes)
+    assert induced.n_classes == int(classes.max()) + 1
+
+
+def test_induced_splits_test_the_feature_that_tells_the_classes_apart():
+    # Percepts are in class 1 where feature 0 shows; 20 noise features also tell the training
+    # percepts apart, but the one test that holds for all of them is feature 0.
+    rng = np.random.default_rng(21)
+    presence = torch.from_numpy(rng.random((400, 21)) < 0.5)
+    splits, groups = induced_splits(presence, presence[:, 0].long(), list(range(21)))
+    assert splits == [(0, 0)] and groups == [0, 1]
+    unseen = torch.from_numpy(rng.random((1000, 21)) < 0.5)
+    induced = ClassBDD.from_splits(21, splits, groups)
+    assert torch.equal(induced.classify(unseen), unseen[:, 0].long())
+
+
+def test_induced_splits_refuse_equal_percepts_in_different_classes():
+    presence = torch.tensor([[1, 0], [1, 0], [0, 1]]).bool()
+    with pytest.raises(ValueError, match="different classes"):
+        induced_splits(presence, torch.tensor([0, 1, 1]), [0, 1])
+    assert induced_splits(presence, torch.tensor([2, 2, 2]), [0, 1]) == ([], [2])
+
+
+def test_regrow_keeps_every_percept_in_its_class_and_q_solved_on_them():
+    db = two_faced_chain(seed=1)
+    rlvc = RLVC(db.n_features, 2, gamma=0.9, compaction=True, compaction_tolerance=0.01)
+    rlvc.learn(db, progress=False)
+    before, q = rlvc.structure.classify(db.presence), rlvc.q.clone()
+    rlvc.regrow(db)
+    after = rlvc.structure.classify(db.presence)
+    assert len(set(zip(before.tolist(), after.tolist(), strict=True))) == len(set(before.tolist()))
+    torch.testing.assert_close(rlvc.q, rlvc.solve(db, after))
+    torch.testing.assert_close(rlvc.q[after], q[before])  # the same classes, renumbered at most
+    assert rlvc.history[-1].classes == rlvc.n_classes
+    with pytest.raises(ValueError, match="compaction=True"):
+        RLVC(db.n_features, 2, gamma=0.9).learn(db, progress=False).regrow(db)

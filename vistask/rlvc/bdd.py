@@ -246,6 +246,23 @@ class ClassBDD:
         self._update_selected()
         return dropped, classes
 
+    @classmethod
+    def from_splits(
+        cls,
+        n_features: int,
+        splits: list[tuple[int, int]],
+        groups: list[int],
+        max_memory: int = MAX_MEMORY,
+    ) -> ClassBDD:
+        """Classes made by ``splits`` (class, feature) from one class, in order, then merged
+        into ``groups`` (one per class the splits make, numbered 0..G-1), as
+        ``compaction.induced_splits`` gives them."""
+        classes = cls(n_features, max_memory)
+        for class_id, feature in splits:
+            classes.split(class_id, feature)
+        classes.merge(torch.as_tensor(groups))
+        return classes
+
     def _non_empty(self) -> torch.Tensor:
         """(S,) bool: classes that some presence vector reaches. In the BDD: functions other
         than false; from the history: classes that class 0 reaches through its splits and

@@ -19,11 +19,20 @@ features, any values 351 at 0.914 of the oracle's return. A learner that makes c
 drops a feature only where it moves percepts between interchangeable classes: on the mountain
 car, dropping features this way lowered the mean return from 0.80 to 0.75 of the oracle's
 (seeds 0-4; 0.76 when compounds were kept), with half the selected features.
+
+Once learning ends, the merged classes are grown again as one decision tree that puts every
+seen percept in its class (``induced_splits``): the tests then serve the merged classes, not
+the TD errors of the classes they were split from.
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
+import numpy as np
+import scipy.sparse
 import torch
+from sklearn.tree import DecisionTreeClassifier
 
 from vistask.rlvc.solver import state_values
 
@@ -102,4 +111,69 @@ def merge_groups(q: torch.Tensor, tolerance: float) -> torch.Tensor:
     return group
 
 
-__all__ = ["DROP_VALUE_TOLERANCE", "acceptable", "interchangeable", "merge_groups"]
+def induced_splits(
+    presence: torch.Tensor, classes: torch.Tensor, features: Sequence[int], seed: int = 0
+) -> tuple[list[tuple[int, int]], list[int]]:
+    """A decision tree over ``features`` that puts every percept in its class, as class splits.
+
+    CART (scikit-learn, Gini impurity) grows the tree until every leaf holds percepts of one
+    class. Unlike the splits that made the classes, each one chosen for the TD errors of a
+    class on its own, the tree's tests are chosen for the merged classes over all percepts: on
+    place navigation the held-out views whose greedy action is not optimal fell from 12.8% to
+    8.9% with the same classes on the training views (entropy: 10.4%).
+
+    Returns the splits (class split, feature tested: the present side becomes the next class
+    id) in the order in which ``ClassBDD.split`` numbers the classes they make, and the class
+    of each of those ids, a leaf of the tree each.
+
+    Args:
+        presence: (N, F) bool presence of the percepts.
+        classes: (N,) long class of each percept; percepts equal on ``features`` must share it.
+        features: the features the tree may test.
+        seed: breaks ties between equally good tests.
+
+    Example:
+        >>> presence = torch.tensor([[1, 0, 0], [0, 1, 0], [0, 0, 1]]).bool()
+        >>> induced_splits(presence, torch.tensor([1, 0, 0]), [0, 1, 2])
+        ([(0, 0)], [0, 1])
+    """
+    features = np.asarray(features, dtype=np.int64)
+    labels = classes.cpu().numpy()
+    if len(np.unique(labels)) < 2 or len(features) == 0:
+        return [], [int(labels[0]) if len(labels) else 0]
+    rows, columns = presence[:, torch.as_tensor(features)].nonzero(as_tuple=True)
+    x = scipy.sparse.csc_matrix(
+        (np.ones(len(rows), dtype=np.float32), (rows.numpy(), columns.numpy())),
+        shape=(len(labels), len(features)),
+    )
+    tree = DecisionTreeClassifier(criterion="gini", random_state=seed).fit(x, labels).tree_
+    shares = tree.value[:, 0, :]  # (nodes, classes)
+    shares = shares / shares.sum(axis=1, keepdims=True)  # counts in older scikit-learn
+    if not (shares[tree.children_left < 0].max(axis=1) > 1 - 1e-6).all():
+        raise ValueError("percepts equal on the features are in different classes")
+    # Breadth first, the absent child keeps its parent's class id and the present child
+    # takes the next one, as ``ClassBDD.split`` numbers them.
+    splits, leaf_class, frontier = [], {}, [(0, 0)]
+    n_ids = 1
+    while frontier:
+        next_frontier = []
+        for node, class_id in frontier:
+            absent, present = tree.children_left[node], tree.children_right[node]
+            if absent < 0:
+                leaf_class[class_id] = int(shares[node].argmax())
+                continue
+            splits.append((class_id, int(features[tree.feature[node]])))
+            next_frontier += [(absent, class_id), (present, n_ids)]
+            n_ids += 1
+        frontier = next_frontier
+    classes_of = np.unique(labels)  # the tree's class indices -> the given classes
+    return splits, [int(classes_of[leaf_class[i]]) for i in range(n_ids)]
+
+
+__all__ = [
+    "DROP_VALUE_TOLERANCE",
+    "acceptable",
+    "induced_splits",
+    "interchangeable",
+    "merge_groups",
+]
