@@ -120,7 +120,7 @@ def induced_splits(
     class. Unlike the splits that made the classes, each one chosen for the TD errors of a
     class on its own, the tree's tests are chosen for the merged classes over all percepts: on
     place navigation the held-out views whose greedy action is not optimal fell from 12.8% to
-    8.9% with the same classes on the training views (entropy: 10.4%).
+    8.9% with the same classes on the training views (entropy: 10.5%).
 
     Returns the splits (class split, feature tested: the present side becomes the next class
     id) in the order in which ``ClassBDD.split`` numbers the classes they make, and the class

@@ -349,8 +349,8 @@ class RLVC:
         regrown tree's are chosen to tell the classes apart over all percepts, so unseen
         percepts land in the right class more often (place navigation, seed 0: held-out
         views with a non-optimal greedy action 12.8% -> 9.2%). Regrowing after every
-        database instead lowered the maze's return (seeds 0-4), since later splits then
-        refine the regrown classes.
+        database instead, the later databases splitting the regrown classes, lowered the
+        maze's return from 0.927 to 0.898 of the oracle's (seeds 0-4).
         """
         if not isinstance(self.structure, ClassBDD):
             raise ValueError("regrow needs compaction=True (the classes of a BDD)")
