@@ -139,7 +139,8 @@ def induced_splits(
     """
     features = np.asarray(features, dtype=np.int64)
     labels = classes.cpu().numpy()
-    if len(np.unique(labels)) < 2 or len(features) == 0:
+    classes_of = np.unique(labels)  # the tree's class indices -> the given classes
+    if len(classes_of) < 2 or len(features) == 0:
         return [], [int(labels[0]) if len(labels) else 0]
     rows, columns = presence[:, torch.as_tensor(features)].nonzero(as_tuple=True)
     x = scipy.sparse.csc_matrix(
@@ -166,7 +167,6 @@ def induced_splits(
             next_frontier += [(absent, class_id), (present, n_ids)]
             n_ids += 1
         frontier = next_frontier
-    classes_of = np.unique(labels)  # the tree's class indices -> the given classes
     return splits, [int(classes_of[leaf_class[i]]) for i in range(n_ids)]
 
 
