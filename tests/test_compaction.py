@@ -359,6 +359,67 @@ def test_induced_splits_test_the_feature_that_tells_the_classes_apart():
     assert torch.equal(induced.classify(unseen), unseen[:, 0].long())
 
 
+def test_induced_splits_reproduce_with_their_seed_and_regrow_outside_the_bdd_alike():
+    rng = np.random.default_rng(22)
+    presence = torch.from_numpy(rng.random((300, 15)) < 0.3)
+    classes = torch.unique(presence[:, :4].sum(dim=1), return_inverse=True)[1]
+    splits, groups = induced_splits(presence, classes, list(range(15)), seed=3)
+    assert induced_splits(presence, classes, list(range(15)), seed=3) == (splits, groups)
+    in_bdd = ClassBDD.from_splits(15, splits, groups)
+    history = ClassBDD.from_splits(15, splits, groups, in_bdd=False)
+    assert in_bdd.in_bdd and not history.in_bdd
+    unseen = torch.from_numpy(rng.random((1000, 15)) < 0.3)
+    assert torch.equal(history.classify(unseen), in_bdd.classify(unseen))
+    assert torch.equal(history.classify(presence), classes)
+
+
+def test_leaves_only_copies_reach_take_the_class_of_the_percepts_around_them():
+    from sklearn.tree import DecisionTreeClassifier
+
+    from vistask.rlvc.compaction import _node_classes
+
+    rng = np.random.default_rng(23)
+    x = (rng.random((200, 16)) < 0.4).astype(np.float32)  # 50 percepts, then 150 copies
+    labels = rng.integers(0, 3, 200)
+    labels[50:] = np.tile(labels[:50], 3)
+    x[50:] = np.tile(x[:50], (3, 1)) * (rng.random((150, 16)) >= 0.3)
+    fitted = DecisionTreeClassifier(random_state=0).fit(x, labels)
+    tree = fitted.tree_
+    leaf_of = fitted.apply(x[:50])
+    assert len(np.unique(x[:50], axis=0)) == 50
+    node_class = _node_classes(tree, leaf_of, labels[:50], 3)
+    parent = {int(c): p for p in range(tree.node_count) for c in tree.children_left[p : p + 1]}
+    parent |= {int(c): p for p in range(tree.node_count) for c in tree.children_right[p : p + 1]}
+
+    def below(node):  # the percepts' labels under a node, by brute force
+        return [
+            label
+            for leaf, label in zip(leaf_of, labels[:50], strict=True)
+            if node == leaf or node in ancestors(leaf)
+        ]
+
+    def ancestors(node):
+        out = []
+        while node in parent and node != 0:
+            node = parent[node]
+            out.append(node)
+        return out
+
+    def leaf_class(leaf):
+        for node in [leaf, *ancestors(leaf)]:
+            if below(node):
+                return int(np.bincount(below(node), minlength=3).argmax())
+
+    for node in range(tree.node_count):
+        leaves = [
+            n
+            for n in range(tree.node_count)
+            if tree.children_left[n] < 0 and (n == node or node in ancestors(n))
+        ]
+        kinds = {leaf_class(leaf) for leaf in leaves}
+        assert node_class[node] == (kinds.pop() if len(kinds) == 1 else -1)
+
+
 def test_induced_splits_refuse_equal_percepts_in_different_classes():
     presence = torch.tensor([[1, 0], [1, 0], [0, 1]]).bool()
     with pytest.raises(ValueError, match="different classes"):

@@ -253,11 +253,16 @@ class ClassBDD:
         splits: list[tuple[int, int]],
         groups: list[int],
         max_memory: int = MAX_MEMORY,
+        in_bdd: bool = True,
     ) -> ClassBDD:
         """Classes made by ``splits`` (class, feature) from one class, in order, then merged
         into ``groups`` (one per class the splits make, numbered 0..G-1), as
-        ``compaction.induced_splits`` gives them."""
+        ``compaction.induced_splits`` gives them; as their history alone unless ``in_bdd``
+        (the merge of a large tree's leaves may fill the memory budget before it fails: 8 s
+        on place navigation at 128 views a state)."""
         classes = cls(n_features, max_memory)
+        if not in_bdd:
+            classes.functions, classes.bdd = None, None
         for class_id, feature in splits:
             classes.split(class_id, feature)
         classes.merge(torch.as_tensor(groups))

@@ -37,6 +37,11 @@ from sklearn.tree import DecisionTreeClassifier
 from vistask.rlvc.solver import state_values
 
 DROP_VALUE_TOLERANCE = 10.0  # in tolerances; see the module's docstring
+# The noisy copies of ``induced_splits``. Place navigation, 128 views a state, the classes of
+# one BDD agent regrown, mean held-out error over 5 draws: 9.0% with no copies; 8.1% with 4
+# copies at 0.15, 7.9% with 6, 7.9% with 8 at 0.1, 7.7% with 8 at 0.2 (7.3-7.9%).
+NOISY_COPIES = 8
+DROP_RATE = 0.2
 
 
 def acceptable(q: torch.Tensor, tolerance: float, value_tolerance: float) -> torch.Tensor:
@@ -118,9 +123,13 @@ def induced_splits(
 
     CART (scikit-learn, Gini impurity) grows the tree until every leaf holds percepts of one
     class. Unlike the splits that made the classes, each one chosen for the TD errors of a
-    class on its own, the tree's tests are chosen for the merged classes over all percepts: on
-    place navigation the held-out views whose greedy action is not optimal fell from 12.8% to
-    8.9% with the same classes on the training views (entropy: 10.5%).
+    class on its own, the tree's tests are chosen for the merged classes over all percepts. It
+    also learns from ``NOISY_COPIES`` copies of every percept, each present feature dropped
+    with probability ``DROP_RATE``: unseen percepts lack some of the features of the seen ones
+    of their state, and the copies make the tree route them by tests that do not hinge on one
+    feature. The copies never move a percept: a leaf takes the class of the percepts in it,
+    or where only copies reach it, the class of the percepts around it (``_node_classes``);
+    a subtree whose leaves all take one class becomes one leaf.
 
     Returns the splits (class split, feature tested: the present side becomes the next class
     id) in the order in which ``ClassBDD.split`` numbers the classes they make, and the class
@@ -130,7 +139,7 @@ def induced_splits(
         presence: (N, F) bool presence of the percepts.
         classes: (N,) long class of each percept; percepts equal on ``features`` must share it.
         features: the features the tree may test.
-        seed: breaks ties between equally good tests.
+        seed: draws the copies and breaks ties between equally good tests.
 
     Example:
         >>> presence = torch.tensor([[1, 0, 0], [0, 1, 0], [0, 0, 1]]).bool()
@@ -139,39 +148,81 @@ def induced_splits(
     """
     features = np.asarray(features, dtype=np.int64)
     labels = classes.cpu().numpy()
-    classes_of = np.unique(labels)  # the tree's class indices -> the given classes
+    classes_of, labels = np.unique(labels, return_inverse=True)  # the tree's class indices
     if len(classes_of) < 2 or len(features) == 0:
-        return [], [int(labels[0]) if len(labels) else 0]
+        return [], [int(classes_of[0]) if len(classes_of) else 0]
+    n = len(labels)
     rows, columns = presence[:, torch.as_tensor(features)].nonzero(as_tuple=True)
+    rows, columns = rows.numpy(), columns.numpy()
+    rng = np.random.default_rng(seed)
+    kept = [rng.random(len(rows)) >= DROP_RATE for _ in range(NOISY_COPIES)]
     x = scipy.sparse.csc_matrix(
-        (np.ones(len(rows), dtype=np.float32), (rows.numpy(), columns.numpy())),
-        shape=(len(labels), len(features)),
+        (
+            np.ones(len(rows) + sum(int(k.sum()) for k in kept), dtype=np.float32),
+            (
+                np.concatenate([rows, *(rows[k] + (i + 1) * n for i, k in enumerate(kept))]),
+                np.concatenate([columns, *(columns[k] for k in kept)]),
+            ),
+        ),
+        shape=(n * (1 + NOISY_COPIES), len(features)),
     )
-    tree = DecisionTreeClassifier(criterion="gini", random_state=seed).fit(x, labels).tree_
-    shares = tree.value[:, 0, :]  # (nodes, classes)
-    shares = shares / shares.sum(axis=1, keepdims=True)  # counts in older scikit-learn
-    if not (shares[tree.children_left < 0].max(axis=1) > 1 - 1e-6).all():
-        raise ValueError("percepts equal on the features are in different classes")
+    tree = DecisionTreeClassifier(criterion="gini", random_state=seed)
+    tree = tree.fit(x, np.tile(labels, 1 + NOISY_COPIES)).tree_
+    node_class = _node_classes(tree, tree.apply(x[:n].tocsr()), labels, len(classes_of))
     # Breadth first, the absent child keeps its parent's class id and the present child
     # takes the next one, as ``ClassBDD.split`` numbers them.
-    splits, leaf_class, frontier = [], {}, [(0, 0)]
+    splits, id_class, frontier = [], {}, [(0, 0)]
     n_ids = 1
     while frontier:
         next_frontier = []
         for node, class_id in frontier:
             absent, present = tree.children_left[node], tree.children_right[node]
-            if absent < 0:
-                leaf_class[class_id] = int(shares[node].argmax())
+            if node_class[node] >= 0:
+                id_class[class_id] = int(classes_of[node_class[node]])
                 continue
             splits.append((class_id, int(features[tree.feature[node]])))
             next_frontier += [(absent, class_id), (present, n_ids)]
             n_ids += 1
         frontier = next_frontier
-    return splits, [int(classes_of[leaf_class[i]]) for i in range(n_ids)]
+    return splits, [id_class[i] for i in range(n_ids)]
+
+
+def _node_classes(tree, leaf_of: np.ndarray, labels: np.ndarray, n_classes: int) -> np.ndarray:
+    """(nodes,) the class of every node of a fitted scikit-learn ``tree`` whose leaves all have
+    one class, else -1.
+
+    A leaf has the class of the percepts in it (``leaf_of`` (N,) their leaves, ``labels`` (N,)
+    their classes). Where only copies reach it, it has the class that most percepts have at
+    its nearest ancestor that percepts reach: the copies choose the tests, but they do not
+    send unseen percepts to classes that no seen percept around them has.
+    """
+    left, right = tree.children_left, tree.children_right
+    counts = np.zeros((tree.node_count, n_classes), dtype=np.int64)
+    np.add.at(counts, (leaf_of, labels), 1)
+    # scikit-learn numbers a node's children after it.
+    for node in range(tree.node_count - 1, -1, -1):
+        if left[node] >= 0:
+            counts[node] = counts[left[node]] + counts[right[node]]
+    if ((counts[left < 0] > 0).sum(axis=1) > 1).any():
+        # A leaf is mixed only where its rows are equal on the features.
+        raise ValueError("percepts equal on the features are in different classes")
+    majority = counts.argmax(axis=1)
+    for node in range(tree.node_count):
+        if left[node] >= 0:
+            for child in (left[node], right[node]):
+                if counts[child].sum() == 0:
+                    majority[child] = majority[node]
+    node_class = np.where(left < 0, majority, -1)
+    for node in range(tree.node_count - 1, -1, -1):
+        if left[node] >= 0 and node_class[left[node]] == node_class[right[node]]:
+            node_class[node] = node_class[left[node]]
+    return node_class
 
 
 __all__ = [
+    "DROP_RATE",
     "DROP_VALUE_TOLERANCE",
+    "NOISY_COPIES",
     "acceptable",
     "induced_splits",
     "interchangeable",

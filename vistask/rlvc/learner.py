@@ -358,7 +358,11 @@ class RLVC:
         # Classes that no percept of db is in go.
         _, classes = torch.unique(self.structure.classify(db.presence), return_inverse=True)
         splits, groups = induced_splits(db.presence, classes, self.structure.selected_features)
-        self.structure = ClassBDD.from_splits(self.n_features, splits, groups)
+        # Classes that outgrew the BDD's memory budget regrow outside it: the tree has more
+        # leaves than they had classes.
+        self.structure = ClassBDD.from_splits(
+            self.n_features, splits, groups, in_bdd=self.structure.in_bdd
+        )
         with single_thread():
             self._q, self._pending = self.solve(db, classes), None
         self._no_compound.clear()
