@@ -387,7 +387,7 @@ def test_leaves_only_copies_reach_take_the_class_of_the_percepts_around_them():
     tree = fitted.tree_
     leaf_of = fitted.apply(x[:50])
     assert len(np.unique(x[:50], axis=0)) == 50
-    node_class = _node_classes(tree, leaf_of, labels[:50], 3)
+    node_class = _node_classes(tree, leaf_of, labels[:50], np.ones(50, dtype=np.int64), 3)
     parent = {int(c): p for p in range(tree.node_count) for c in tree.children_left[p : p + 1]}
     parent |= {int(c): p for p in range(tree.node_count) for c in tree.children_right[p : p + 1]}
 
