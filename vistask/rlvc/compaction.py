@@ -154,7 +154,7 @@ def induced_splits(
     if len(classes_of) < 2 or len(features) == 0:
         return [], [int(classes_of[0]) if len(classes_of) else 0]
     # A percept seen many times is one row, weighted by its count (place navigation: 400,000
-    # interactions show 51,200 views).
+    # interactions show at most 51,200 views).
     bits = np.packbits(presence[:, torch.as_tensor(features)].cpu().numpy(), axis=1)
     rows_as_bytes = bits.view(np.dtype((np.void, bits.shape[1]))).ravel()  # 20x np.unique(axis)
     _, first, inverse, weight = np.unique(
@@ -165,6 +165,7 @@ def induced_splits(
     labels, n = labels[first], len(first)
     rows, columns = np.unpackbits(bits[first], axis=1, count=len(features)).nonzero()
     rng = np.random.default_rng(seed)
+    copies = 1 + NOISY_COPIES  # the percepts, then their noisy copies
     kept = [rng.random(len(rows)) >= DROP_RATE for _ in range(NOISY_COPIES)]
     x = scipy.sparse.csc_matrix(
         (
@@ -174,10 +175,9 @@ def induced_splits(
                 np.concatenate([columns, *(columns[k] for k in kept)]),
             ),
         ),
-        shape=(n * (1 + NOISY_COPIES), len(features)),
+        shape=(n * copies, len(features)),
     )
     tree = DecisionTreeClassifier(criterion="gini", random_state=seed)
-    copies = 1 + NOISY_COPIES
     tree = tree.fit(x, np.tile(labels, copies), sample_weight=np.tile(weight, copies)).tree_
     leaf_of = tree.apply(x[:n].tocsr())
     node_class = _node_classes(tree, leaf_of, labels, weight, len(classes_of))

@@ -349,8 +349,8 @@ class RLVC:
         regrown tree's are chosen to tell the classes apart over all percepts, so unseen
         percepts land in the right class more often (place navigation, 512 views a state,
         seed 0: held-out views with a non-optimal greedy action 10.0% -> 6.9%). Regrowing
-        after every database instead, the later databases splitting the regrown classes, lowered the
-        maze's return from 0.927 to 0.898 of the oracle's (seeds 0-4).
+        after every database instead, the later databases splitting the regrown classes,
+        lowered the maze's return from 0.927 to 0.898 of the oracle's (seeds 0-4).
         """
         if not isinstance(self.structure, ClassBDD):
             raise ValueError("regrow needs compaction=True (the classes of a BDD)")
