@@ -131,8 +131,12 @@ class ClassBDD:
                 f"as their history of splits and merges, which classifies as the BDD did ({error})",
                 stacklevel=3,
             )
-            self.functions = None
-            self.bdd = None  # frees CUDD's nodes
+            self._leave_bdd()
+
+    def _leave_bdd(self) -> None:
+        """The classes go on as their history alone (``in_bdd`` turns False)."""
+        self.functions = None
+        self.bdd = None  # frees CUDD's nodes
 
     def widen(self, n_features: int) -> None:
         """Presence vectors hold ``n_features`` features from now on (compounds were added)."""
@@ -262,7 +266,7 @@ class ClassBDD:
         on place navigation at 128 views a state)."""
         classes = cls(n_features, max_memory)
         if not in_bdd:
-            classes.functions, classes.bdd = None, None
+            classes._leave_bdd()
         for class_id, feature in splits:
             classes.split(class_id, feature)
         classes.merge(torch.as_tensor(groups))
@@ -338,7 +342,7 @@ class ClassBDD:
         if state.get("in_bdd", True):
             classes._bdd_step(classes._functions_of_history)
         else:
-            classes.functions, classes.bdd = None, None
+            classes._leave_bdd()
         classes._update_selected()
         return classes
 
