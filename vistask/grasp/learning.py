@@ -406,7 +406,7 @@ class GraspLearner:
             self.proposal = explored
 
     def _density(self, reliability: float) -> SE3KDE | None:
-        return empirical_density(
+        density = empirical_density(
             self.trials,
             self.proposals,
             self.c_rel,
@@ -414,6 +414,8 @@ class GraspLearner:
             self.sigma_r,
             reliability=reliability,
         )
+        # The trials are kept on the CPU; the learned densities live where the hypothesis does.
+        return None if density is None else density.to(self.hypothesis.device)
 
     def success_rates(self, grasps: torch.Tensor) -> torch.Tensor:
         """(M, 7) object-frame grasps -> (M,) the success rate of the trials around each.

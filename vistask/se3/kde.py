@@ -24,7 +24,13 @@ from vistask.se3.poses import check_poses
 
 # Kernel blocks of about 2**17 floats (512 KB) stay in cache through the in-place chain and
 # are large enough to amortise per-op overhead (measured best on the 2-core dev machine).
+# A GPU has no such cache to fit and pays a launch per op: blocks of 2**24 (128 MB in float64).
 BLOCK_ELEMENTS = 1 << 17
+GPU_BLOCK_ELEMENTS = 1 << 24
+
+
+def _block_elements(device: torch.device) -> int:
+    return BLOCK_ELEMENTS if device.type == "cpu" else GPU_BLOCK_ELEMENTS
 
 # Query groups smaller than the radius gather fewer far pairs, at more per-group overhead.
 GROUP_SCALE = 1.0
@@ -188,7 +194,7 @@ class KernelDensity:
         terms = self._pair_terms()
         feats, dirs = terms.query_features(x[:, :3], x[:, 3:])
         n = len(self)
-        chunk = chunk_size or max(1, BLOCK_ELEMENTS // n)
+        chunk = chunk_size or max(1, _block_elements(x.device) // n)
         chunk = min(chunk, max(1, x.shape[0]))
         out = torch.empty(x.shape[0], dtype=x.dtype, device=x.device)
         buf = torch.empty(2, chunk * n, dtype=x.dtype, device=x.device)
@@ -236,7 +242,8 @@ class KernelDensity:
         box_max = (-inf).scatter_reduce(0, index, tq_sorted, "amax").tolist()
         feats, dirs = feats[order], dirs[order]
         out = torch.zeros(x.shape[0], dtype=x.dtype, device=x.device)
-        buf = torch.empty(2, BLOCK_ELEMENTS, dtype=x.dtype, device=x.device)
+        block_elements = _block_elements(x.device)
+        buf = torch.empty(2, BLOCK_ELEMENTS, dtype=x.dtype, device=x.device)  # grown as needed
         start, pairs = 0, 0
         for g, size in enumerate(counts.tolist()):
             stop, a0 = start + size, start
@@ -247,7 +254,7 @@ class KernelDensity:
                 continue
             pairs += size * m
             g_feats, g_dirs, g_weights = p_feats[idx], p_dirs[idx], p_weights[idx]
-            chunk = chunk_size or max(1, BLOCK_ELEMENTS // m)
+            chunk = chunk_size or max(1, block_elements // m)
             if buf.shape[1] < min(chunk, size) * m:
                 buf = torch.empty(2, min(chunk, size) * m, dtype=x.dtype, device=x.device)
             for a in range(a0, stop, chunk):
