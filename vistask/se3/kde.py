@@ -32,6 +32,7 @@ GPU_BLOCK_ELEMENTS = 1 << 24
 def _block_elements(device: torch.device) -> int:
     return BLOCK_ELEMENTS if device.type == "cpu" else GPU_BLOCK_ELEMENTS
 
+
 # Query groups smaller than the radius gather fewer far pairs, at more per-group overhead.
 GROUP_SCALE = 1.0
 
