@@ -37,7 +37,11 @@ def main() -> None:
         default=None,
         help="SIFT's detection threshold (default: the agent's, 0.005)",
     )
-    parser.add_argument("--out", default=None, help="default runs/compare_compaction-<time>")
+    parser.add_argument(
+        "--out",
+        default=None,
+        help="default runs/compare_compaction-<time>; a stopped run's folder resumes it",
+    )
     parser.add_argument("--no-progress", action="store_true")
     args = parser.parse_args()
     compare_compaction(

@@ -48,6 +48,13 @@ def write_summary(path: str | Path, summary: dict) -> Path:
     return path
 
 
+def append_record(path: str | Path, record: dict) -> None:
+    """Append ``record`` to the JSON-lines file ``path`` as one line (NumPy values
+    converted), so that a stopped run keeps every record finished before it stopped."""
+    with open(path, "a") as f:
+        f.write(json.dumps(_plain(record), allow_nan=False) + "\n")
+
+
 def print_table(rows: dict[str, Any], title: str = "") -> None:
     """Print ``name value`` rows aligned, numbers with 4 significant digits."""
     if title:

@@ -36,7 +36,14 @@ from vistask.experiments import statistics
 from vistask.experiments.tasks import GridCells, Task, task_for
 from vistask.parallel import Outcome, cluster_address, map_runs, ray_session
 from vistask.rlvc import random_policy
-from vistask.runs import check_same_settings, print_table, run_dir, tensorboard, write_summary
+from vistask.runs import (
+    append_record,
+    check_same_settings,
+    print_table,
+    run_dir,
+    tensorboard,
+    write_summary,
+)
 
 DISCRETE_METHODS = ("rlvc", "rlvc_compounds", "dqn", "ppo", "tabular", "random")
 CONTINUOUS_METHODS = ("rljc", "sac", "ppo", "random")
@@ -742,8 +749,7 @@ def compare(
             path = out / "tensorboard" / name
             path.parent.mkdir(parents=True, exist_ok=True)
             path.write_bytes(data)
-        with open(out / "runs.jsonl", "a") as runs:
-            runs.write(json.dumps(asdict(result)) + "\n")
+        append_record(out / "runs.jsonl", asdict(result))
         units.append(result)
         if progress:
             curve = " ".join(f"{r:.1f}" for r in result.returns)

@@ -9,6 +9,7 @@ Example:
 
 from __future__ import annotations
 
+import json
 import time
 from pathlib import Path
 
@@ -26,7 +27,13 @@ from vistask.envs.place_navigation import draw_world, view_sheet
 from vistask.experiments import statistics
 from vistask.experiments.tasks import PlaceTask, Task, task_for
 from vistask.experiments.train_rlvc import agent_policy
-from vistask.runs import print_table, run_dir, write_summary
+from vistask.runs import (
+    append_record,
+    check_same_settings,
+    print_table,
+    run_dir,
+    write_summary,
+)
 
 METHODS = ("tree", "bdd")
 MEASURES = ("classes", "selected_features", "return_ratio", "test_error", "seconds")
@@ -78,6 +85,20 @@ def run_method(
     return result, history
 
 
+def load_finished(out: Path, settings: dict) -> dict[tuple[str, int], tuple[dict, list[dict]]]:
+    """The runs a stopped comparison left in ``out/runs.jsonl``, by (method, seed): their
+    measures and histories. ``out`` must hold a comparison with the same ``settings``
+    (``comparison.json``), so that resuming never mixes two comparisons."""
+    check_same_settings(out / "comparison.json", settings)
+    path = out / "runs.jsonl"
+    finished = {}
+    for line in path.read_text().splitlines() if path.exists() else []:
+        run = json.loads(line)
+        key = run.pop("method"), run.pop("seed")
+        finished[key] = run, run.pop("history")
+    return finished
+
+
 def plot_sawtooth(histories: dict[str, list[list[dict]]], path: Path) -> Path:
     """Classes (left) and selected features (right) per stage, every seed, both methods."""
     fig, axes = plt.subplots(1, 2, figsize=(10, 3.6))
@@ -123,6 +144,9 @@ def compare_compaction(
     interval, and the per-seed values; on place navigation also ``train_error``, the test
     error's measure on the training views),
     ``sawtooth.png`` and, for place navigation, ``world.png`` and ``views.png`` to ``out``.
+    Each finished run is appended to ``runs.jsonl`` at once, its agent saved as
+    ``<method>-seed<k>.pt``; calling again on the same ``out`` with the same settings runs
+    only the methods and seeds that are missing.
 
     Args:
         env_id, env_kwargs: an env that ``task_for`` knows (the maze, its real-image option,
@@ -134,7 +158,8 @@ def compare_compaction(
             ``compaction_tolerance``.
         max_stages: both agents' stage cap (``RLVCAgent``'s ``max_stages``).
         contrast_threshold: both agents' SIFT detection threshold (default: the agent's).
-        out: output folder (default ``runs/compare_compaction-<time>``).
+        out: output folder (default ``runs/compare_compaction-<time>``); an existing one
+            with the same settings is resumed.
         progress: show progress bars.
     """
     env_kwargs = env_kwargs or {}
@@ -159,25 +184,7 @@ def compare_compaction(
     }
     if contrast_threshold is not None:
         agent_kwargs["contrast_threshold"] = contrast_threshold
-    runs = {m: [] for m in methods}
-    histories = {m: [] for m in methods}
-    for seed in seeds:
-        for method in methods:
-            result, history = run_method(
-                method,
-                env,
-                task,
-                test_set,
-                train_set,
-                interactions,
-                seed,
-                agent_kwargs,
-                out,
-                progress,
-            )
-            runs[method].append({"seed": seed, **result})
-            histories[method].append(history)
-    summary = {
+    settings = {
         "env_id": env_id,
         "env_kwargs": env_kwargs,
         "interactions": interactions,
@@ -185,8 +192,32 @@ def compare_compaction(
         "tolerance": tolerance,
         "max_stages": max_stages,
         "contrast_threshold": contrast_threshold,
-        "seeds": list(seeds),
     }
+    finished = load_finished(out, settings)
+    runs = {m: [] for m in methods}
+    histories = {m: [] for m in methods}
+    for seed in seeds:
+        for method in methods:
+            if (method, seed) in finished:
+                result, history = finished[method, seed]
+            else:
+                result, history = run_method(
+                    method,
+                    env,
+                    task,
+                    test_set,
+                    train_set,
+                    interactions,
+                    seed,
+                    agent_kwargs,
+                    out,
+                    progress,
+                )
+                record = {"method": method, "seed": seed, **result, "history": history}
+                append_record(out / "runs.jsonl", record)
+            runs[method].append({"seed": seed, **result})
+            histories[method].append(history)
+    summary = {**settings, "seeds": list(seeds)}
     for method in methods:
         values = {key: [r[key] for r in runs[method]] for key in measures}
         means = {key: float(np.mean(v)) for key, v in values.items()}
