@@ -27,13 +27,7 @@ from vistask.envs.place_navigation import draw_world, view_sheet
 from vistask.experiments import statistics
 from vistask.experiments.tasks import PlaceTask, Task, task_for
 from vistask.experiments.train_rlvc import agent_policy
-from vistask.runs import (
-    append_record,
-    check_same_settings,
-    print_table,
-    run_dir,
-    write_summary,
-)
+from vistask.runs import append_record, check_same_settings, print_table, run_dir, write_summary
 
 METHODS = ("tree", "bdd")
 MEASURES = ("classes", "selected_features", "return_ratio", "test_error", "seconds")
@@ -94,8 +88,8 @@ def load_finished(out: Path, settings: dict) -> dict[tuple[str, int], tuple[dict
     finished = {}
     for line in path.read_text().splitlines() if path.exists() else []:
         run = json.loads(line)
-        key = run.pop("method"), run.pop("seed")
-        finished[key] = run, run.pop("history")
+        history = run.pop("history")
+        finished[run.pop("method"), run.pop("seed")] = run, history
     return finished
 
 
