@@ -55,6 +55,14 @@ def append_record(path: str | Path, record: dict) -> None:
         f.write(json.dumps(_plain(record), allow_nan=False) + "\n")
 
 
+def read_records(path: str | Path) -> list[dict]:
+    """The records that ``append_record`` wrote to ``path`` (none if there is no file)."""
+    path = Path(path)
+    if not path.exists():
+        return []
+    return [json.loads(line) for line in path.read_text().splitlines() if line]
+
+
 def print_table(rows: dict[str, Any], title: str = "") -> None:
     """Print ``name value`` rows aligned, numbers with 4 significant digits."""
     if title:

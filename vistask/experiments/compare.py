@@ -40,6 +40,7 @@ from vistask.runs import (
     append_record,
     check_same_settings,
     print_table,
+    read_records,
     run_dir,
     tensorboard,
     write_summary,
@@ -679,10 +680,7 @@ def load_finished(out: Path, config: Comparison) -> list[RunResult]:
     comparison with the same settings (``comparison.json``), so that resuming never mixes two
     comparisons."""
     check_same_settings(out / "comparison.json", config.params())
-    path = out / "runs.jsonl"
-    if not path.exists():
-        return []
-    return [RunResult(**json.loads(line)) for line in path.read_text().splitlines() if line]
+    return [RunResult(**record) for record in read_records(out / "runs.jsonl")]
 
 
 def compare(

@@ -9,7 +9,6 @@ Example:
 
 from __future__ import annotations
 
-import json
 import time
 from pathlib import Path
 
@@ -27,7 +26,14 @@ from vistask.envs.place_navigation import draw_world, view_sheet
 from vistask.experiments import statistics
 from vistask.experiments.tasks import PlaceTask, Task, task_for
 from vistask.experiments.train_rlvc import agent_policy
-from vistask.runs import append_record, check_same_settings, print_table, run_dir, write_summary
+from vistask.runs import (
+    append_record,
+    check_same_settings,
+    print_table,
+    read_records,
+    run_dir,
+    write_summary,
+)
 
 METHODS = ("tree", "bdd")
 MEASURES = ("classes", "selected_features", "return_ratio", "test_error", "seconds")
@@ -84,10 +90,8 @@ def load_finished(out: Path, settings: dict) -> dict[tuple[str, int], tuple[dict
     measures and histories. ``out`` must hold a comparison with the same ``settings``
     (``comparison.json``), so that resuming never mixes two comparisons."""
     check_same_settings(out / "comparison.json", settings)
-    path = out / "runs.jsonl"
     finished = {}
-    for line in path.read_text().splitlines() if path.exists() else []:
-        run = json.loads(line)
+    for run in read_records(out / "runs.jsonl"):
         history = run.pop("history")
         finished[run.pop("method"), run.pop("seed")] = run, history
     return finished
