@@ -11,7 +11,7 @@ from stable_baselines3.common.callbacks import CheckpointCallback, EvalCallback
 
 from vistask.agents import RLVCAgent, TabularQAgent
 from vistask.envs import MazeOracle, VisualMazeEnv, evaluate_policy, start_positions
-from vistask.experiments.tasks import MazeTask, task_for
+from vistask.experiments.tasks import MazeTask
 from vistask.experiments.train_rlvc import agent_policy, train_rlvc, true_grid_policy
 from vistask.features import VisualFeatureExtractor, propose
 from vistask.features.compounds import presence_of_candidates
@@ -331,8 +331,8 @@ def test_train_rlvc_on_the_car_scores_against_its_oracle_and_draws_it(tmp_path):
     )
     assert summary["oracle_return"] > 0.5  # the oracle reaches the top from every start
     assert summary["velocity_r2_best_word"] < 0.2  # no single word reads the gauge
+    assert summary["compounds_made"] >= summary["compound_features"] > 0
     for picture in ("road_and_gauge.png", "car_policy.png", "car_classes.png"):
         assert (tmp_path / picture).stat().st_size > 0
-    agent = RLVCAgent.load(tmp_path / "rlvc_agent.pt", gym.make(env_id))
-    task = task_for(env_id)
-    assert task.evaluate(agent_policy(agent)).mean == pytest.approx(summary["rlvc_return"])
+    # That a saved agent reproduces its return is checked on the maze, where it is cheap.
+    assert RLVCAgent.load(tmp_path / "rlvc_agent.pt").rlvc.compounds
