@@ -15,11 +15,14 @@ $(STAMP): pyproject.toml constraints.txt
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PIP) install --upgrade pip
 	# torch first: this pin resolves to the local CPU wheel; a bare range would pull CUDA builds.
-	$(PIP) install torch==2.13.0
-	$(PIP) install -c constraints.txt -e ".[dev]"
+	$(PIP) install --no-compile torch==2.13.0
+	$(PIP) install --no-compile -c constraints.txt -e ".[dev]"
 	# robosuite depends on opencv-python; keep exactly one OpenCV (the headless one) importable.
 	$(PIP) uninstall -y opencv-python
-	$(PIP) install -c constraints.txt --force-reinstall --no-deps opencv-python-headless
+	$(PIP) install --no-compile -c constraints.txt --force-reinstall --no-deps opencv-python-headless
+	# Byte-compile on every core rather than in pip's single process (about half the time).
+	# Some packages ship files that do not compile (pip skips them too), hence the || true.
+	$(PY) -m compileall -q -j 0 $$($(PY) -c "import sysconfig; print(sysconfig.get_paths()['purelib'])") >/dev/null || true
 	$(PY) -c "import cv2, torch, torchrl, gymnasium, stable_baselines3, robosuite, mujoco, roma, dd, minigrid, ray, rliable.library"
 	touch $(STAMP)
 
