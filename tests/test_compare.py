@@ -29,7 +29,6 @@ def quick_run(tmp_path_factory):
     return out, compare(Comparison.quick(), out, progress=False, workers=2)
 
 
-@pytest.mark.slow
 def test_quick_comparison_writes_every_output(quick_run):
     out, summary = quick_run
     budgets = summary["budgets"]
@@ -74,7 +73,6 @@ def test_quick_comparison_writes_every_output(quick_run):
     assert set(stats["improvement"]) == {f"rlvc,{m}" for m in DISCRETE_METHODS if m != "rlvc"}
 
 
-@pytest.mark.slow
 def test_tensorboard_holds_eval_return_against_interactions(quick_run):
     from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 

@@ -124,7 +124,6 @@ def test_grasp_trials_spread_tip_and_add_distractors() -> None:
         env.close()
 
 
-@pytest.mark.slow
 def test_an_mjcf_object_goes_through_grasp_learning_with_its_own_pose_estimates(tmp_path) -> None:
     from vistask.experiments.grasps import GraspExperiment
 

@@ -133,14 +133,17 @@ def test_train_rlvc_stopped_by_sigterm_resumes_with_the_results_of_a_straight_ru
     import time
     from pathlib import Path
 
-    script = str(Path(__file__).resolve().parents[1] / "scripts" / "train_rlvc.py")
+    from vistask.experiments.train_rlvc import train_rlvc
+
     small = '{"obstacles": [[0.45, 0.0, 0.55, 0.6]], "exits": [[0.8, 0.0, 1.0, 0.2]], "step": 0.2}'
-    args = ["--interactions", "3000", "--env-kwargs", small, "--no-progress", "--seed", "2"]
     straight = tmp_path / "straight"
-    subprocess.run(
-        [sys.executable, script, *args, "--out", str(straight)], check=True, capture_output=True
+    train_rlvc(
+        env_kwargs=json.loads(small), interactions=3000, seed=2, out=straight, progress=False
     )
 
+    # The same settings through the script, stopped by SIGTERM after its first database.
+    script = str(Path(__file__).resolve().parents[1] / "scripts" / "train_rlvc.py")
+    args = ["--interactions", "3000", "--env-kwargs", small, "--no-progress", "--seed", "2"]
     stopped = tmp_path / "stopped"
     child = subprocess.Popen(
         [sys.executable, script, *args, "--out", str(stopped)],
@@ -166,7 +169,6 @@ def test_train_rlvc_stopped_by_sigterm_resumes_with_the_results_of_a_straight_ru
     assert not (stopped / "checkpoint.pt").exists()
 
 
-@pytest.mark.slow
 def test_learn_grasps_stopped_by_sigterm_resumes_bit_for_bit(tmp_path):
     pytest.importorskip("robosuite")
     import signal
