@@ -208,6 +208,8 @@ def test_learn_grasps_stopped_by_sigterm_resumes_bit_for_bit(tmp_path):
 
     for key in ("hypothesis_success", "empirical_success", "best_of_10_success", "trials"):
         assert resumed[key] == straight["objects"]["cube"][key], key
+    cycles = [c["successes"] for c in straight["objects"]["cube"]["cycles"]]
+    assert [c["successes"] for c in resumed["cycles"]] == cycles
     a = GraspLearner.load(tmp_path / "straight" / "cube" / "learner.pt")
     b = GraspLearner.load(stopped / "cube" / "learner.pt")
     assert torch.equal(a.trials.grasps, b.trials.grasps)
