@@ -2,7 +2,7 @@
 percepts), tabular Q-learning on the true state and random actions, at the same interaction
 budgets, over several seeds; on an env with continuous actions, RLJC with SB3 SAC/PPO.
 
-python scripts/compare_baselines.py                      # full run: 5 seeds, budgets 1k..100k
+python scripts/compare_baselines.py                      # full run: 5 seeds, budgets 1k..300k
 python scripts/compare_baselines.py --quick              # tiny budgets (what the tests run)
 python scripts/compare_baselines.py --budgets 1000 2000 5000 10000 20000 --seeds 3
 python scripts/compare_baselines.py --env vistask/VisualMountainCar-v0 --grid rlvc
