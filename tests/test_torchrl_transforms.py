@@ -12,6 +12,7 @@ from torchrl.envs.utils import check_env_specs
 
 import vistask.envs  # noqa: F401  (registers the maze)
 from vistask.agents import RLVCAgent
+from vistask.features.compounds import propose
 from vistask.torchrl_transforms import VisualClassTransform, VisualFeatureTransform
 from vistask.wrappers import VisualClasses, VisualFeatures
 
@@ -77,3 +78,27 @@ def test_transform_rejects_non_images(agent):
     transform = VisualClassTransform(agent.classifier)
     with pytest.raises(ValueError, match="uint8 images"):
         transform._apply_transform(torch.zeros(4, 7))
+
+
+def test_compounds_follow_the_words_in_the_wrapper_and_the_transform(agent):
+    maze = gym.make(ENV_ID, **SMALL)
+    images = [maze.reset(seed=s)[0] for s in range(20)]
+    compounds = propose(agent.extractor.occurrences(images), min_count=3)[:4]
+    assert len(compounds) == 4
+    n = agent.extractor.n_features
+    wrapper = VisualFeatures(gym.make(ENV_ID, **SMALL), agent.extractor, compounds)
+    assert wrapper.observation_space == gym.spaces.MultiBinary(n + 4)
+    observed = np.stack([wrapper.observation(image) for image in images])
+    words = VisualFeatures(gym.make(ENV_ID, **SMALL), agent.extractor)
+    np.testing.assert_array_equal(observed[:, :n], [words.observation(i) for i in images])
+    # A candidate's pairs lie within one tolerance cell of its offset: it shows somewhere.
+    assert observed[:, n:].any(axis=0).all()
+
+    env = TransformedEnv(
+        GymEnv(ENV_ID, **SMALL), VisualFeatureTransform(agent.extractor, compounds=compounds)
+    )
+    check_env_specs(env, seed=0)
+    reset = env.reset()
+    assert reset["features"].shape == (n + 4,)
+    expected = wrapper.observation(reset["pixels"].numpy())
+    np.testing.assert_array_equal(reset["features"].numpy(), expected)

@@ -20,7 +20,7 @@ import torch
 from torchrl.data import Binary, Categorical, Composite, TensorSpec
 from torchrl.envs.transforms import Transform
 
-from vistask.features import VisualFeatureExtractor
+from vistask.features import Compound, VisualFeatureExtractor
 from vistask.wrappers import Classifier
 
 
@@ -63,27 +63,35 @@ class _ImageTransform(Transform):
 
 
 class VisualFeatureTransform(_ImageTransform):
-    """Image -> (F,) int8 presence vector of the F visual features (``Binary`` spec).
+    """Image -> (F + C,) int8 presence vector of the F visual features (words) and of C
+    compound features (``Binary`` spec).
 
     Args:
         extractor: the visual feature extractor (vocabulary).
         in_key: key of the (..., H, W, 3) uint8 images.
-        out_key: key of the (..., F) int8 presence vectors.
+        out_key: key of the (..., F + C) int8 presence vectors.
+        compounds: compounds learned on this extractor's words (``RLVC.compounds``).
     """
 
     def __init__(
-        self, extractor: VisualFeatureExtractor, in_key: str = "pixels", out_key: str = "features"
+        self,
+        extractor: VisualFeatureExtractor,
+        in_key: str = "pixels",
+        out_key: str = "features",
+        *,
+        compounds: Sequence[Compound] = (),
     ) -> None:
         super().__init__(in_key, out_key)
         self.extractor = extractor
+        self.compounds = list(compounds)
 
     def _spec(self, device) -> TensorSpec:
-        n = self.extractor.n_features
+        n = self.extractor.n_features + len(self.compounds)
         return Binary(n=n, shape=(n,), device=device, dtype=torch.int8)
 
     def _apply_transform(self, pixels: torch.Tensor) -> torch.Tensor:
         images, batch = _images(pixels)
-        presence = self.extractor.presence(images).to(torch.int8)
+        presence = self.extractor.presence(images, self.compounds).to(torch.int8)
         return presence.reshape(*batch, -1).to(pixels.device)
 
 

@@ -3,13 +3,14 @@ compatible joint classes."""
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import TYPE_CHECKING, Protocol
 
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from vistask.features import VisualFeatureExtractor, check_image_space
+from vistask.features import Compound, VisualFeatureExtractor, check_image_space
 
 if TYPE_CHECKING:
     from vistask.rlvc import JointClassifier
@@ -24,27 +25,36 @@ class Classifier(Protocol):
 
 
 class VisualFeatures(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
-    """Image observation -> ``MultiBinary(F)`` presence vector of the F visual features.
+    """Image observation -> ``MultiBinary(F + C)`` presence vector of the F visual features
+    (words) and of C compound features.
 
     Example:
-        >>> env = gym.make("vistask/VisualMaze-v0")
-        >>> env = VisualFeatures(env, VisualFeatureExtractor.load("vocab.pt"))
-        >>> obs, info = env.reset(seed=0)   # (F,) int8 0/1
+        >>> env = gym.make("vistask/VisualMountainCar-v0")
+        >>> agent = RLVCAgent.load("car.pt")
+        >>> env = VisualFeatures(env, agent.extractor, agent.rlvc.compounds)
+        >>> obs, info = env.reset(seed=0)   # (F + C,) int8 0/1, words then compounds
 
     Args:
         env: environment with (H, W, 3) uint8 image observations.
         extractor: the visual feature extractor (vocabulary).
+        compounds: compounds learned on this extractor's words (``RLVC.compounds``).
     """
 
-    def __init__(self, env: gym.Env, extractor: VisualFeatureExtractor) -> None:
+    def __init__(
+        self,
+        env: gym.Env,
+        extractor: VisualFeatureExtractor,
+        compounds: Sequence[Compound] = (),
+    ) -> None:
         check_image_space(env.observation_space, "VisualFeatures")
-        gym.utils.RecordConstructorArgs.__init__(self, extractor=extractor)
+        gym.utils.RecordConstructorArgs.__init__(self, extractor=extractor, compounds=compounds)
         gym.ObservationWrapper.__init__(self, env)
         self.extractor = extractor
-        self.observation_space = spaces.MultiBinary(extractor.n_features)
+        self.compounds = list(compounds)
+        self.observation_space = spaces.MultiBinary(extractor.n_features + len(self.compounds))
 
     def observation(self, observation: np.ndarray) -> np.ndarray:
-        return self.extractor(observation)
+        return self.extractor.presence([observation], self.compounds)[0].numpy().astype(np.int8)
 
 
 class VisualClasses(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
