@@ -12,7 +12,7 @@ from vistask.experiments.tasks import task_for
 
 def test_small_comparison_writes_both_methods_and_the_sawtooth(tmp_path):
     summary = compare_compaction(
-        interactions=3000, seeds=[0], contrast_threshold=0.01, out=tmp_path, progress=False
+        interactions=1500, seeds=[0], contrast_threshold=0.01, out=tmp_path, progress=False
     )
     saved = json.loads((tmp_path / "summary.json").read_text())
     for method in ("tree", "bdd"):
@@ -28,14 +28,14 @@ def test_small_comparison_writes_both_methods_and_the_sawtooth(tmp_path):
     # Run again on the same folder: every run is finished, so nothing learns again.
     (tmp_path / "tree-seed0.pt").unlink()
     again = compare_compaction(
-        interactions=3000, seeds=[0], contrast_threshold=0.01, out=tmp_path, progress=False
+        interactions=1500, seeds=[0], contrast_threshold=0.01, out=tmp_path, progress=False
     )
     assert not (tmp_path / "tree-seed0.pt").exists()
     assert len((tmp_path / "runs.jsonl").read_text().splitlines()) == 2
     for method in ("tree", "bdd"):
         assert again[method]["runs"] == summary[method]["runs"]
     with pytest.raises(ValueError, match="other settings"):
-        compare_compaction(interactions=2000, seeds=[0], out=tmp_path, progress=False)
+        compare_compaction(interactions=1000, seeds=[0], out=tmp_path, progress=False)
 
 
 def test_maze_test_set_marks_the_oracles_action_optimal():
