@@ -101,21 +101,22 @@ def test_a_visual_agent_resumes_from_its_checkpoint_as_a_straight_run(agent_name
     def make():
         return cls(gym.make(env_id, **small), n_words=256, databases=3, n_envs=16, seed=4)
 
-    straight = make().learn(1500)
+    total = 1500  # three databases of 500
+    straight = make().learn(total)
 
     class StopInTheLastDatabase(BaseCallback):
         def _on_step(self) -> bool:
-            if self.model.num_timesteps == 1500:
+            if self.model.num_timesteps == total:
                 raise KeyboardInterrupt
             return True
 
     path = tmp_path / "agent.pt"
     with pytest.raises(KeyboardInterrupt):
-        make().learn(1500, callback=StopInTheLastDatabase(), checkpoint=path)
+        make().learn(total, callback=StopInTheLastDatabase(), checkpoint=path)
     resumed = cls.load(path, gym.make(env_id, **small))
     assert resumed.num_timesteps == 1000 and len(resumed.database) == 1000
-    resumed.learn(1500 - resumed.num_timesteps, reset_num_timesteps=False)
-    assert resumed.num_timesteps == 1500
+    resumed.learn(total - resumed.num_timesteps, reset_num_timesteps=False)
+    assert resumed.num_timesteps == total
     a, b = straight.learner.state_dict(), resumed.learner.state_dict()
     assert len(a["history"]) == len(b["history"])
     images = np.stack(
