@@ -74,7 +74,7 @@ from vistask.envs.scene import (
 )
 from vistask.grasp.learning import Workspace
 from vistask.objects import NBP, DepthCheck, ObjectModel
-from vistask.parallel import ray_session
+from vistask.parallel import ray_session, worker_threads
 from vistask.vision import (
     Camera,
     Patches,
@@ -703,7 +703,10 @@ class VectorGraspTrials:
         object_kind: the target object.
         num_envs: parallel environments.
         model: the target's object model, for poses the trials estimate themselves.
-        asynchronous: processes (``AsyncVectorEnv``) or, for debugging, one process.
+        asynchronous: processes (``AsyncVectorEnv``) or this process (default: processes when
+            ``num_envs`` > 1; one environment gains nothing from a process of its own and would
+            pay for starting it). In this process the trials run on one thread, as a worker's
+            do, so that their results are the same.
         **env_kwargs: passed to ``GraspTrialEnv`` (see ``make_trial_env``).
     """
 
@@ -712,15 +715,18 @@ class VectorGraspTrials:
         object_kind: str,
         num_envs: int = 2,
         model: ObjectModel | None = None,
-        asynchronous: bool = True,
+        asynchronous: bool | None = None,
         **env_kwargs: Any,
     ) -> None:
+        if asynchronous is None:
+            asynchronous = num_envs > 1
         if asynchronous:
             fns = [functools.partial(_worker_env, object_kind, model, env_kwargs)] * num_envs
             self.env: gym.vector.VectorEnv = gym.vector.AsyncVectorEnv(fns, context="spawn")
         else:
             fns = [functools.partial(make_trial_env, object_kind, model, **env_kwargs)] * num_envs
             self.env = gym.vector.SyncVectorEnv(fns)
+        self._threads = contextlib.nullcontext if asynchronous else worker_threads
         self.num_envs = num_envs
         self.workspace: Workspace = self.env.get_attr("workspace")[0]
         self.object_bounds: np.ndarray = self.env.get_attr("object_bounds")[0]
@@ -732,14 +738,16 @@ class VectorGraspTrials:
         to act on (estimated with a model, else true)."""
         if len(seeds) != self.num_envs:
             raise ValueError(f"need {self.num_envs} seeds, got {len(seeds)}")
-        _, info = self.env.reset(seed=[int(s) for s in seeds])
+        with self._threads():
+            _, info = self.env.reset(seed=[int(s) for s in seeds])
         self.last_reset_info = info
         return acting_poses(info)
 
     def execute(self, grasps: torch.Tensor) -> tuple[torch.Tensor, dict[str, Any]]:
         """Execute (B, 7) world grasps; returns (B,) bool successes and the step infos."""
         grasps = np.asarray(torch.as_tensor(grasps, dtype=torch.float64).cpu())
-        _, reward, _, _, info = self.env.step(grasps)
+        with self._threads():
+            _, reward, _, _, info = self.env.step(grasps)
         self.last_info = info
         return torch.as_tensor(reward > 0.5), info
 

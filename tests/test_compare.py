@@ -26,7 +26,7 @@ from vistask.experiments.tasks import GridCells, task_for
 def quick_run(tmp_path_factory):
     out = tmp_path_factory.mktemp("compare")
     # Two worker processes, one thread each: the path a user's default run takes.
-    return out, compare(Comparison.quick(), out, progress=False, workers=2)
+    return out, compare(Comparison.quick(budgets=(300, 600)), out, progress=False, workers=2)
 
 
 def test_quick_comparison_writes_every_output(quick_run):

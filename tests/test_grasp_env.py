@@ -118,7 +118,7 @@ def test_ray_actors_run_the_trials_of_local_processes() -> None:
     results = []
     for make in (
         lambda: RayGraspTrials("cube", num_envs=2, **EASY),
-        lambda: VectorGraspTrials("cube", 1, **EASY),
+        lambda: VectorGraspTrials("cube", 1, asynchronous=True, **EASY),
     ):
         runner = make()
         try:
@@ -164,9 +164,7 @@ def test_estimated_poses_drive_the_trials() -> None:
 
     patches = object_patches("cube", 2, ("front", "top"), 128, voxel=0.004)
     model = ObjectModel.learn(patches, name="cube")
-    runner = VectorGraspTrials(
-        "cube", 1, model, asynchronous=False, cameras=("front",), image_size=96, **EASY
-    )
+    runner = VectorGraspTrials("cube", 1, model, cameras=("front",), image_size=96, **EASY)
 
     class Fixed:
         """An estimator that always sees the object at ``pose``."""

@@ -297,7 +297,7 @@ def test_train_script_picks_rljc_for_continuous_actions_and_writes_its_summary(t
         "--env-kwargs",
         json.dumps(SMALL),
         "--interactions",
-        "1500",
+        "1000",
         "--out",
         str(tmp_path),
         "--no-progress",
@@ -306,7 +306,7 @@ def test_train_script_picks_rljc_for_continuous_actions_and_writes_its_summary(t
     summary = json.loads((tmp_path / "summary.json").read_text())
     for key in ("joint_classes", "perceptual_cells", "rlvc_classes_x4", "seconds"):
         assert summary[key] > 0
-    assert summary["interactions"] == 1500
+    assert summary["interactions"] == 1000
     assert summary["return_ratio"] == pytest.approx(
         summary["rljc_return"] / summary["oracle_return"]
     )

@@ -114,8 +114,8 @@ class GraspExperiment:
             empirical densities, sampled and best of ``BEST_OF``).
         n_distractors: other objects on the table in every trial.
         tip_probability: chance that an object that may tip lies on a side.
-        num_envs: simulators running trials side by side (local processes, or Ray actors
-            with ``address``); the results do not depend on it.
+        num_envs: simulators running trials side by side (local processes, a single one in
+            this process, or Ray actors with ``address``); the results do not depend on it.
         sigma_t, sigma_r: bandwidth of the hypothesis density.
         empirical_sigma_t, empirical_sigma_r: bandwidth of the empirical density; smaller
             than the hypothesis's because its particles are already noisy successful draws,
