@@ -24,6 +24,7 @@ from stable_baselines3.common.evaluation import evaluate_policy as sb3_evaluate_
 import vistask.envs  # noqa: F401  (registers the environments)
 from vistask.agents import RLVCAgent
 from vistask.agents.visual_agent import VisualAgent
+from vistask.checks import check_at_least
 from vistask.envs.car_plots import percepts_at, plot_car_policy, plot_road, state_grid
 from vistask.envs.maze_oracle import Policy
 from vistask.envs.maze_plots import percept_grid, plot_policy, plot_values
@@ -265,6 +266,7 @@ def train_rlvc(
     Returns:
         The summary written to ``summary.json``.
     """
+    check_at_least(1, eval_starts=eval_starts)
     start = time.perf_counter()
     out = run_dir("train_rlvc", out)
     settings = {"env_id": env_id, "env_kwargs": env_kwargs or {}, "interactions": interactions}
