@@ -74,7 +74,7 @@ from vistask.envs.scene import (
 )
 from vistask.grasp.learning import Workspace
 from vistask.objects import NBP, DepthCheck, ObjectModel
-from vistask.parallel import ray_session, worker_threads
+from vistask.parallel import one_thread, ray_session, worker_threads
 from vistask.vision import (
     Camera,
     Patches,
@@ -680,8 +680,8 @@ def make_trial_env(
 
 
 def _worker_env(object_kind: str, model: ObjectModel | None, env_kwargs: dict) -> gym.Env:
-    # One torch thread per simulator process: the processes already fill the cores.
-    torch.set_num_threads(1)
+    # One thread per simulator process: the processes already fill the cores.
+    one_thread()
     return make_trial_env(object_kind, model, **env_kwargs)
 
 
@@ -692,7 +692,8 @@ def acting_poses(info: dict[str, Any]) -> torch.Tensor:
 
 
 class VectorGraspTrials:
-    """Parallel grasp trials in ``num_envs`` processes: a ``vistask.grasp.TrialRunner``.
+    """Parallel grasp trials in ``num_envs`` processes (a single one in this process): a
+    ``vistask.grasp.TrialRunner``.
 
     Each call to ``reset`` starts one episode per environment and ``execute`` ends them
     (one grasp each), so gymnasium's autoreset never comes into play. With an object

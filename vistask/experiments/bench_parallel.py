@@ -9,6 +9,7 @@ run's, value for value.
 
 from __future__ import annotations
 
+import functools
 import os
 import time
 from collections.abc import Sequence
@@ -60,7 +61,8 @@ def bench_grasp_trials(
     from vistask.envs.grasp_trial import RayGraspTrials, VectorGraspTrials
 
     rows, reference = [], None
-    for name, make in (("processes", VectorGraspTrials), ("ray", RayGraspTrials)):
+    processes = functools.partial(VectorGraspTrials, asynchronous=True)  # even for one
+    for name, make in (("processes", processes), ("ray", RayGraspTrials)):
         for n in workers:
             t0 = time.perf_counter()
             runner = make(object_kind, n)

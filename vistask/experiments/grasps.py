@@ -131,9 +131,9 @@ class GraspExperiment:
             the rate itself, or this power where it is lower.
         seed: random seed of grasp draws.
         address: a Ray cluster to run the simulators on as actors (``RayGraspTrials``;
-            default ``RAY_ADDRESS``); None runs them as local processes
-            (``VectorGraspTrials``, which started faster than local Ray actors: see
-            ``scripts/bench_parallel.py``).
+            default ``RAY_ADDRESS``); None runs them as local processes, a single one in
+            this process (``VectorGraspTrials``, which started faster than local Ray actors:
+            see ``scripts/bench_parallel.py``).
 
     Raises:
         ValueError: no object, a hypothesis or pose source not among ``HYPOTHESES`` /

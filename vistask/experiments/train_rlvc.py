@@ -270,6 +270,8 @@ def train_rlvc(
     start = time.perf_counter()
     out = run_dir("train_rlvc", out)
     settings = {"env_id": env_id, "env_kwargs": env_kwargs or {}, "interactions": interactions}
+    if eval_starts != EVAL_STARTS:
+        settings["eval_starts"] = eval_starts
     options = {"compounds": compounds, "compaction": compaction}
     if compaction_tolerance is not None:
         options["compaction_tolerance"] = compaction_tolerance
