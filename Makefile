@@ -39,10 +39,11 @@ demo: $(STAMP)
 	$(PY) scripts/train_rlvc.py
 
 # The tests marked slow repeat in processes, on Ray or after a signal what other tests check in
-# one process; with them `make test` would pass 15 minutes on a 2-core machine.
+# one process; with them `make test` would pass 15 minutes on a 2-core machine. The others run
+# a file a worker, a worker a core, each on one thread (tests/conftest.py).
 test: $(STAMP)
 	$(VENV)/bin/lint-imports
-	$(PY) -m pytest -q -m "not slow"
+	$(PY) -m pytest -q -m "not slow" -n auto --dist loadfile
 
 test-all: $(STAMP)
 	$(VENV)/bin/lint-imports
