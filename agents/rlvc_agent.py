@@ -71,9 +71,8 @@ class RLVCAgent(VisualAgent):
             the classes already test when it does half as well as the best; when ``learn``
             ends, the merged classes are grown again as one decision tree over the features
             they test (``RLVC.regrow``), which classifies unseen views better on place
-            navigation (on the mountain car it lowers the return: 0.765 of the oracle's
-            against 0.796, seeds 0-4) (False: a decision tree that only splits, on the best
-            feature).
+            navigation but lowers the mountain car's return (0.765 of the oracle's against
+            0.796, seeds 0-4). False: a decision tree that only splits, on the best feature.
         compact_every: with ``compaction``, merge every this many stages as well (None:
             only when the stages of a database end).
         compaction_tolerance: merge classes whose values, and the values of their greedy
