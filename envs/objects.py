@@ -92,6 +92,9 @@ _SYMMETRIES: dict[str, Callable[[], Symmetry]] = {
     "MilkObject": lambda: Symmetry.about_axis((0.0, 0.0, 1.0), order=2),
     "CerealObject": Symmetry.box,
     "BoxObject": Symmetry.box,
+    # Flat rings with a handle along x: the same shape turned upside down about the handle.
+    "SquareNutObject": lambda: Symmetry.about_axis((1.0, 0.0, 0.0), order=2),
+    "RoundNutObject": lambda: Symmetry.about_axis((1.0, 0.0, 0.0), order=2),
     # An ellipsoid of uniform texture: any turn about its long axis, and end for end. Its
     # cross-section is 40 x 43 mm, so a turn about that axis moves its outline 1.5 mm at most.
     "LemonObject": lambda: Symmetry(

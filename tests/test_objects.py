@@ -51,6 +51,33 @@ def test_a_lemon_turned_about_its_long_axis_or_end_for_end_is_the_same_pose() ->
     assert abs(float(tilted) - np.degrees(0.5)) < 0.01
 
 
+def _box_corners(name: str) -> torch.Tensor:
+    """(G * 8, 3) corners of the box geoms of robosuite object ``name``, in its body frame."""
+    corners = []
+    for geom in object_spec(name).make("probe").get_obj().iter("geom"):
+        assert geom.get("type") == "box"
+        pos, size = (torch.tensor([float(v) for v in geom.get(k).split()]) for k in ("pos", "size"))
+        axis_angle = [float(v) for v in geom.get("axisangle", "0 0 1 0").split()]
+        turn = roma.rotvec_to_rotmat(torch.tensor(axis_angle[:3]) * axis_angle[3])
+        signs = torch.cartesian_prod(*[torch.tensor([-1.0, 1.0])] * 3)
+        corners.append(pos + (signs * size) @ turn.T)
+    return torch.cat(corners).double()
+
+
+@pytest.mark.parametrize("nut", ["square_nut", "round_nut"])
+def test_a_nut_upside_down_about_its_handle_is_the_same_shape(nut: str) -> None:
+    corners = _box_corners(nut)
+
+    def same_shape(quat: torch.Tensor) -> bool:
+        turned = corners @ roma.unitquat_to_rotmat(quat.double()).T
+        return bool(torch.cdist(turned, corners).min(1).values.max() < 1e-6)
+
+    assert len(object_spec(nut).symmetry.rotations) == 2
+    assert all(same_shape(q) for q in object_spec(nut).symmetry.rotations)
+    quarter_turn = roma.rotvec_to_unitquat(torch.tensor([np.pi / 2, 0.0, 0.0]))
+    assert not same_shape(quarter_turn)  # the handle's box is not square in section
+
+
 def test_a_scene_does_not_depend_on_the_other_objects_a_world_holds() -> None:
     alone = tabletop_world(["milk"]).generate(5, "milk", 0, cameras=())
     among = tabletop_world(["milk", "can", "box", "lemon"]).generate(

@@ -61,7 +61,18 @@ density the one whose neighbours among the learning trials succeeded most often
 
 HYPOTHESES = ("feature", "demo")
 POSE_SOURCES = ("estimate", "true")
-DEFAULT_OBJECTS = ("box", "cereal", "milk", "can", "bottle", "bread", "lemon", "hammer")
+DEFAULT_OBJECTS = (
+    "box",
+    "cereal",
+    "milk",
+    "can",
+    "bottle",
+    "bread",
+    "lemon",
+    "hammer",
+    "square_nut",
+    "round_nut",
+)
 
 
 def hypothesis_density(
