@@ -62,6 +62,30 @@ def test_a_candidate_of_parts_the_images_do_not_show_is_absent():
     assert presence_of_candidates(occ, candidates).tolist() == [[True, False], [False, False]]
 
 
+def test_select_keeps_the_occurrences_of_the_chosen_images_renumbered():
+    rng = np.random.default_rng(5)
+    occ = random_occurrences(rng, n_images=30)
+    images = np.sort(rng.choice(33, 12, replace=False))  # some beyond the table's images
+    got = occ.select(images)
+    keep = np.isin(occ.image, images)
+    assert got.n_images == 12 and len(got) == keep.sum()
+    assert got.image.tolist() == np.searchsorted(images, occ.image[keep]).tolist()
+    for field in ("feature", "part", "xy", "scale"):
+        assert np.array_equal(getattr(got, field), getattr(occ, field)[keep]), field
+
+
+def test_propose_relates_no_pair_beyond_its_reach():
+    def two_images(dx):
+        return Occurrences([0, 0, 1, 1], [0, 1, 0, 1], [[0, 0], [dx, 0]] * 2, [1] * 4, 3)
+
+    assert propose(two_images(300.0), min_count=1) == []  # 300 scales apart, MAX_REACH 256
+    assert [(c.first, c.second, c.offset) for c in propose(two_images(30.0), min_count=1)] == [
+        (0, 1, (30.0, 0.0)),
+        (1, 0, (-30.0, 0.0)),
+    ]
+    assert propose(Occurrences([], [], [], [], 0)) == []
+
+
 def test_a_compound_of_a_compound_occurs_at_its_parts_midpoint():
     occ = Occurrences([0, 0, 0], [0, 1, 2], [[0, 0], [4, 0], [2, 6]], [2, 2, 2], 1)
     pair = Compound(0, 1, (2.0, 0.0), 0.1)  # 1 two scales right of 0: at (2, 0)

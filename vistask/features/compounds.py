@@ -105,13 +105,17 @@ class Occurrences:
     def select(self, images: np.ndarray) -> Occurrences:
         """Occurrences of the sorted distinct ``images``, renumbered 0..len(images)-1."""
         images = np.asarray(images)
-        position = np.searchsorted(images, self.image)
-        inside = position < len(images)
-        inside[inside] = images[position[inside]] == self.image[inside]
-        kept = self.take(inside)
-        kept.image = position[inside].astype(np.int32)
-        kept.n_images = len(images)
-        return kept
+        lo = np.searchsorted(self.image, images, "left")
+        count = np.searchsorted(self.image, images, "right") - lo
+        index = concatenated_ranges(lo, count)
+        return Occurrences(
+            np.repeat(np.arange(len(images), dtype=np.int32), count),
+            self.feature[index],
+            self.xy[index],
+            self.scale[index],
+            len(images),
+            self.part[index],
+        )
 
     def merge(self, other: Occurrences) -> Occurrences:
         """Both tables' occurrences in the same images, sorted by image (stable: this table's
@@ -157,6 +161,11 @@ class Compound:
         return cls(int(first), int(second), (float(offset[0]), float(offset[1])), float(tolerance))
 
 
+def concatenated_ranges(start: np.ndarray, count: np.ndarray) -> np.ndarray:
+    """The ranges ``start[k] .. start[k] + count[k] - 1`` one after the other (sum(count),)."""
+    return np.repeat(start - (np.cumsum(count) - count), count) + np.arange(count.sum())
+
+
 def pairs(occ: Occurrences, first: np.ndarray, second: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Every pair (i, j), i in ``first`` and j in ``second`` (sorted occurrence indices), of
     occurrences in the same image, i != j: (i (Q,), j (Q,))."""
@@ -164,15 +173,16 @@ def pairs(occ: Occurrences, first: np.ndarray, second: np.ndarray) -> tuple[np.n
     lo = np.searchsorted(image_j, image_i, "left")
     count = np.searchsorted(image_j, image_i, "right") - lo
     i = np.repeat(first, count)
-    starts = np.repeat(lo - (np.cumsum(count) - count), count)  # j's slice start, per pair
-    j = second[starts + np.arange(len(i))]
+    j = second[concatenated_ranges(lo, count)]
     distinct = i != j
     return i[distinct], j[distinct]
 
 
 def _displacement(occ: Occurrences, i: np.ndarray, j: np.ndarray) -> np.ndarray:
     """(Q, 2) displacement from occurrence i to occurrence j, in units of i's scale."""
-    return (occ.xy[j] - occ.xy[i]) / occ.scale[i, None]
+    scale, x, y = occ.scale[i], occ.xy[:, 0], occ.xy[:, 1]
+    # Column by column: gathers of single columns take 40% less time than gathers of rows.
+    return np.stack([(x[j] - x[i]) / scale, (y[j] - y[i]) / scale], axis=1)
 
 
 def _within(displacement: np.ndarray, compound: Compound) -> np.ndarray:
@@ -235,60 +245,101 @@ def propose(
             f"need tolerances > 0, min_count >= 1 and max_candidates >= 1, got {tolerances}, "
             f"{min_count}, {max_candidates}"
         )
-    everything = np.arange(len(occ))
+    everything = np.arange(len(occ), dtype=np.int32)  # int32 indices: pairs twice as fast
     i, j = pairs(occ, everything, everything)
     d = _displacement(occ, i, j)
-    n_parts = int(occ.part.max(initial=0)) + 1
-    pair_key = occ.part[i].astype(np.int64) * n_parts + occ.part[j]
+    # Dense part ids keep the parts' order and the (bin, image) codes below small.
+    parts, dense = np.unique(occ.part, return_inverse=True)
+    pair_key = dense[i].astype(np.int64) * len(parts) + dense[j]
+    image = occ.image[i]
     candidates = []
     for tolerance in tolerances:
         cell = np.floor(d / tolerance + 0.5).astype(np.int64)
         reach = MAX_REACH / tolerance
-        near = (np.abs(cell) < reach).all(1)
         span = 2 * int(np.ceil(reach)) + 1
-        key = (pair_key[near] * span + cell[near, 0] + span // 2) * span + cell[near, 1] + span // 2
-        if not near.any():
-            continue
-        # Distinct images per bin: sort by (bin, image) and count the changes of image. The
-        # pairs come in image order, so a stable sort by bin is that sort (2x lexsort's speed).
-        image = occ.image[i[near]]
-        order = np.argsort(key, kind="stable")
-        key, image, dn = key[order], image[order], d[near][order]
-        new_bin = np.r_[True, key[1:] != key[:-1]]
-        new_image = new_bin | np.r_[True, image[1:] != image[:-1]]
-        start = np.flatnonzero(new_bin)
-        bins, size = key[start], np.diff(np.r_[start, len(key)])
-        images = np.add.reduceat(new_image.astype(np.int64), start)
+        if len(parts) ** 2 * span**2 * occ.n_images >= 2**63:
+            raise ValueError(
+                f"{len(parts)} parts in {occ.n_images} images are too many to bin at tolerance "
+                f"{tolerance}: propose on fewer images or with a wider tolerance"
+            )
+        key = (pair_key * span + cell[:, 0] + span // 2) * span + cell[:, 1] + span // 2
+        key[(np.abs(cell[:, 0]) >= reach) | (np.abs(cell[:, 1]) >= reach)] = -1  # in no bin
+        # Distinct images per bin: the sorted distinct (bin, image) codes (a sort of values,
+        # 4x faster than a stable argsort of the bins).
+        code = np.unique(key * occ.n_images + image)
+        bin_of = code[code >= 0] // occ.n_images
+        start = np.flatnonzero(np.diff(bin_of, prepend=-1))  # bins are >= 0
+        bins, images = bin_of[start], np.diff(np.r_[start, len(bin_of)])
         ok = (images >= min_count) & (images <= occ.n_images - min_count)
-        ranked = np.flatnonzero(ok)[np.argsort(-images[ok], kind="stable")][:max_candidates]
-        offsets = np.add.reduceat(dn, start, axis=0)[ranked] / size[ranked, None]
-        pair = bins[ranked] // (span * span)
+        ranked = bins[np.flatnonzero(ok)[np.argsort(-images[ok], kind="stable")][:max_candidates]]
+        if not len(ranked):
+            continue
+        # Offsets: the mean displacement of each ranked bin's pairs, summed in the pairs' order.
+        chosen = np.sort(ranked)
+        at = np.searchsorted(chosen, key)
+        member = np.flatnonzero(np.r_[chosen, -2][at] == key)  # -2: no bin (keys are >= -1)
+        member = member[np.argsort(key[member], kind="stable")]
+        first = np.flatnonzero(np.diff(key[member], prepend=-1))
+        size = np.diff(np.r_[first, len(member)])
+        offsets = np.add.reduceat(d[member], first, axis=0) / size[:, None]
+        offsets = offsets[np.searchsorted(chosen, ranked)]
+        pair = ranked // (span * span)
         candidates += [
-            Compound(int(p // n_parts), int(p % n_parts), (float(x), float(y)), float(tolerance))
+            Compound(
+                int(parts[p // len(parts)]),
+                int(parts[p % len(parts)]),
+                (float(x), float(y)),
+                float(tolerance),
+            )
             for p, (x, y) in zip(pair, offsets, strict=True)
         ]
     return candidates
 
 
 def presence_of_candidates(occ: Occurrences, candidates: list[Compound]) -> torch.Tensor:
-    """(n_images, K) bool: candidate k present in image i (pairs of each part pair are
-    enumerated once, however many candidates share it)."""
+    """(n_images, K) bool: candidate k present in image i.
+
+    The pairs of occurrences of every candidate's part pair are enumerated at once, each pair
+    once however many candidates share its parts, and tested against the candidates of its
+    part pair: the first candidate of every part pair in one pass, the second in the next, ...
+    """
     presence = torch.zeros(occ.n_images, len(candidates), dtype=torch.bool)
-    by_pair: dict[tuple[int, int], list[int]] = {}
-    for k, c in enumerate(candidates):
-        by_pair.setdefault((c.first, c.second), []).append(k)
-    order = np.argsort(occ.part, kind="stable")
-    # Parts up to the largest that a candidate or an occurrence names: a candidate may name a
-    # part that these images do not show (it is then absent).
-    last = max([int(occ.part.max(initial=0))] + [max(c.first, c.second) for c in candidates])
-    bounds = np.searchsorted(occ.part[order], np.arange(last + 2))
-    for (a, b), ks in by_pair.items():
-        # A stable argsort keeps each part's occurrences in ascending (image) order.
-        i, j = pairs(occ, order[bounds[a] : bounds[a + 1]], order[bounds[b] : bounds[b + 1]])
-        d = _displacement(occ, i, j)
-        for k in ks:
-            hit = occ.image[i[_within(d, candidates[k])]]
-            presence[torch.from_numpy(hit).long(), k] = True
+    if not candidates:
+        return presence
+    parts, of_pair = np.unique(
+        np.array([(c.first, c.second) for c in candidates], np.int64), axis=0, return_inverse=True
+    )
+    of_pair = of_pair.reshape(-1)
+    # Part pairs with the most candidates first: the pairs that meet an m-th are a prefix.
+    size = np.bincount(of_pair, minlength=len(parts))
+    rank = np.argsort(-size, kind="stable")
+    parts, size = parts[rank], size[rank]
+    by_pair = np.argsort(np.argsort(rank)[of_pair], kind="stable")
+    start = np.cumsum(size) - size  # candidates of part pair p: by_pair[start[p]:][:size[p]]
+    # Occurrences sorted by (part, image): those of a part in an image are one slice of it.
+    code = occ.part.astype(np.int64) * occ.n_images + occ.image
+    order = np.argsort(code, kind="stable")
+    code = code[order]
+    lo = np.searchsorted(code, parts[:, 0] * occ.n_images)
+    count = np.searchsorted(code, (parts[:, 0] + 1) * occ.n_images) - lo
+    i = order[concatenated_ranges(lo, count)]  # occurrences of each part pair's first part
+    pair = np.repeat(np.arange(len(parts)), count)
+    second = parts[pair, 1] * occ.n_images + occ.image[i]  # ... and its second in that image
+    lo = np.searchsorted(code, second, "left")
+    count = np.searchsorted(code, second, "right") - lo
+    i, j, pair = np.repeat(i, count), order[concatenated_ranges(lo, count)], np.repeat(pair, count)
+    distinct = i != j
+    i, j = i[distinct], j[distinct]
+    block = np.bincount(pair[distinct], minlength=len(parts))  # pairs of each part pair
+    d, image = _displacement(occ, i, j), occ.image[i]
+    offset = np.array([c.offset for c in candidates], np.float32)
+    radius2 = np.array([c.tolerance**2 for c in candidates], np.float32)  # as ``_within``
+    for m in range(int(size[0])):
+        active = int(np.count_nonzero(size > m))  # part pairs with an m-th candidate
+        k = np.repeat(by_pair[start[:active] + m], block[:active])
+        error = d[: len(k)] - offset[k]
+        hit = np.flatnonzero(error[:, 0] ** 2 + error[:, 1] ** 2 <= radius2[k])
+        presence[torch.from_numpy(image[hit]).long(), torch.from_numpy(k[hit])] = True
     return presence
 
 

@@ -21,7 +21,7 @@ import numpy as np
 import torch
 
 from vistask.features import Compound
-from vistask.features.compounds import presence_of_candidates, propose
+from vistask.features.compounds import concatenated_ranges, presence_of_candidates, propose
 from vistask.rlvc.database import InteractionDatabase
 from vistask.rlvc.split import Split, find_splits, sse
 
@@ -99,8 +99,14 @@ def find_compound_splits(
         candidates = propose(occurrences, tolerances, min_count, max_candidates)
         if not candidates:
             continue
-        presence = presence_of_candidates(occurrences, candidates)[torch.from_numpy(local)]
-        which, feature = presence.nonzero(as_tuple=True)
+        # (interaction, candidate) presence pairs in the order of a nonzero of the (rows, K)
+        # matrix, made from the smaller (percepts, K) one: each percept's candidates repeated
+        # for each of its interactions.
+        percept, of_percept = presence_of_candidates(occurrences, candidates).nonzero(as_tuple=True)
+        count = np.bincount(percept.numpy(), minlength=len(percepts))
+        start = np.cumsum(count) - count
+        which = torch.from_numpy(np.repeat(np.arange(len(rows)), count[local]))
+        feature = of_percept[torch.from_numpy(concatenated_ranges(start[local], count[local]))]
         splits = find_splits(
             which,
             feature,
