@@ -185,11 +185,11 @@ def _displacement(occ: Occurrences, i: np.ndarray, j: np.ndarray) -> np.ndarray:
     return np.stack([(x[j] - x[i]) / scale, (y[j] - y[i]) / scale], axis=1)
 
 
-def _within(displacement: np.ndarray, compound: Compound) -> np.ndarray:
-    """(Q,) bool: the displacements (Q, 2) that match ``compound``'s offset within its
-    tolerance."""
-    error = displacement - np.asarray(compound.offset, np.float32)
-    return (error * error).sum(1) <= compound.tolerance**2
+def _within(displacement: np.ndarray, offset: np.ndarray, radius2: np.ndarray) -> np.ndarray:
+    """(Q,) bool: the displacements (Q, 2) within a tolerance of an offset: ``offset`` (2,) or
+    (Q, 2) and the squared tolerance ``radius2`` () or (Q,), float32 as the displacements."""
+    error = displacement - offset
+    return error[:, 0] ** 2 + error[:, 1] ** 2 <= radius2
 
 
 def match(occ: Occurrences, compound: Compound) -> tuple[np.ndarray, np.ndarray]:
@@ -197,7 +197,8 @@ def match(occ: Occurrences, compound: Compound) -> tuple[np.ndarray, np.ndarray]
     first = np.flatnonzero(occ.part == compound.first)
     second = np.flatnonzero(occ.part == compound.second)
     i, j = pairs(occ, first, second)
-    near = _within(_displacement(occ, i, j), compound)
+    offset = np.asarray(compound.offset, np.float32)
+    near = _within(_displacement(occ, i, j), offset, np.float32(compound.tolerance**2))
     return i[near], j[near]
 
 
@@ -333,12 +334,11 @@ def presence_of_candidates(occ: Occurrences, candidates: list[Compound]) -> torc
     block = np.bincount(pair[distinct], minlength=len(parts))  # pairs of each part pair
     d, image = _displacement(occ, i, j), occ.image[i]
     offset = np.array([c.offset for c in candidates], np.float32)
-    radius2 = np.array([c.tolerance**2 for c in candidates], np.float32)  # as ``_within``
+    radius2 = np.array([c.tolerance**2 for c in candidates], np.float32)
     for m in range(int(size[0])):
         active = int(np.count_nonzero(size > m))  # part pairs with an m-th candidate
         k = np.repeat(by_pair[start[:active] + m], block[:active])
-        error = d[: len(k)] - offset[k]
-        hit = np.flatnonzero(error[:, 0] ** 2 + error[:, 1] ** 2 <= radius2[k])
+        hit = np.flatnonzero(_within(d[: len(k)], offset[k], radius2[k]))
         presence[torch.from_numpy(image[hit]).long(), torch.from_numpy(k[hit])] = True
     return presence
 
