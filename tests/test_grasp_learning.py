@@ -442,3 +442,56 @@ def test_trials_do_not_depend_on_how_many_simulators_run_them() -> None:
     assert 0 < int(results[0][1].sum()) < 10  # the outcomes carry information
     with pytest.raises(ValueError, match="need 10 placement seeds"):
         run_trials(density, _SeededRunner(2, target), 10, range(9), None, _gen(5))
+
+
+class _RecordingRunner(_SeededRunner):
+    """``_SeededRunner`` for ``GraspExperiment``: a 4 cm cube; records the placement seeds."""
+
+    workspace = None
+    object_bounds = ((-0.02,) * 3, (0.02,) * 3)
+
+    def __init__(self) -> None:
+        super().__init__(1, _pose([0.0, 0.0, 0.02], [math.pi, 0.0, 0.0]))
+        self.placements: list[int] = []
+
+    def reset(self, seeds) -> torch.Tensor:
+        self.placements += [int(s) for s in seeds]
+        return super().reset(seeds)
+
+    def close(self) -> None:
+        pass
+
+
+def test_learning_placements_follow_the_seed_and_held_out_ones_do_not(tmp_path, monkeypatch):
+    from types import SimpleNamespace
+
+    from vistask.experiments.grasps import GraspExperiment, learning_placements
+
+    def placements(seed: int) -> tuple[list[int], list[int]]:
+        """(learning, held-out) placement seeds of a run seeded ``seed``."""
+        runner = _RecordingRunner()
+        monkeypatch.setattr(GraspExperiment, "_runner", lambda self, kind, model: runner)
+        experiment = GraspExperiment(
+            objects=("cube",),
+            hypothesis="demo",
+            cycles=2,
+            trials_per_cycle=3,
+            eval_trials=2,
+            seed=seed,
+        )
+        corners = 0.02 * torch.tensor([[x, y, 1.0] for x in (-1, 1) for y in (-1, 1)])
+        top = Patches(corners, torch.eye(3)[[0, 1, 0, 1]], torch.rand(4, 2, 3, generator=_gen()))
+        model = SimpleNamespace(name="cube", patches=top)  # all that the demo hypothesis needs
+        experiment.learn_object("cube", model, tmp_path / str(seed))
+        # Held out: 2 placements, sampled then best of 10, before and after learning.
+        held_out = runner.placements[:4] + runner.placements[-4:]
+        return runner.placements[4:-4], held_out
+
+    learn0, held0 = placements(0)
+    learn1, held1 = placements(1)
+    assert learn0 == [*learning_placements(0, 0, 3), *learning_placements(0, 1, 3)]
+    assert held0 == held1 and len(set(held0)) == 2
+    assert len(set(learn0)) == len(set(learn1)) == 6 and not set(learn0) & set(learn1)
+    assert not set(held0) & (set(learn0) | set(learn1))
+    with pytest.raises(ValueError, match="seed"):
+        GraspExperiment(seed=-1)

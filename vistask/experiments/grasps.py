@@ -50,9 +50,28 @@ from vistask.se3 import SE3KDE
 
 CHECKPOINT = "GraspExperimentCheckpoint"  # the kind of file of an object's last cycle
 
-# Placement seeds: learning and evaluation never share a placement.
+# Placement seeds: learning and evaluation never share a placement. The held-out placements
+# are the same for every run, so that runs are compared on one test; the learning placements
+# depend on the run's seed and the cycle (at most 80 cycles of 100,000 trials each).
 LEARN_SEED_BASE = 1_000_000
 EVAL_SEED_BASE = 9_000_000
+CYCLE_STRIDE = 100_000
+SEED_STRIDE = 10_000_000
+
+
+def learning_placements(seed: int, cycle: int, n: int) -> range:
+    """Placement seeds of the ``n`` trials of learning cycle ``cycle`` of a run seeded ``seed``
+    (>= 0): the same whatever the objects named, never one of another seed's or cycle's, or
+    a held-out one (``EVAL_SEED_BASE`` onwards, below ``LEARN_SEED_BASE + SEED_STRIDE``).
+
+    >>> learning_placements(0, 1, 3)
+    range(1100000, 1100003)
+    >>> learning_placements(2, 0, 2)
+    range(21000000, 21000002)
+    """
+    base = LEARN_SEED_BASE + SEED_STRIDE * seed + CYCLE_STRIDE * cycle
+    return range(base, base + n)
+
 
 BEST_OF = 10
 """The "best of 10" evaluation executes the best of this many reachable draws: for the learned
@@ -140,7 +159,8 @@ class GraspExperiment:
             learned density (``GraspLearner``): higher concentrates it on the grasps that
             succeed most often; 0 gives the paper's weights. Learning draws its trials with
             the rate itself, or this power where it is lower.
-        seed: random seed of grasp draws.
+        seed: random seed (>= 0) of the grasp draws and the learning placements
+            (``learning_placements``); the held-out placements are the same for every seed.
         address: a Ray cluster to run the simulators on as actors (``RayGraspTrials``;
             default ``RAY_ADDRESS``); None runs them as local processes, a single one in
             this process (``VectorGraspTrials``, which started faster than local Ray actors:
@@ -148,7 +168,8 @@ class GraspExperiment:
 
     Raises:
         ValueError: no object, a hypothesis or pose source not among ``HYPOTHESES`` /
-            ``POSE_SOURCES``, a count below 1, a bandwidth not positive, or c_rel negative.
+            ``POSE_SOURCES``, a count below 1, a bandwidth not positive, or c_rel or seed
+            negative.
     """
 
     def __init__(
@@ -190,7 +211,9 @@ class GraspExperiment:
             empirical_sigma_t=empirical_sigma_t,
             empirical_sigma_r=empirical_sigma_r,
         )
-        check_at_least(0, c_rel=c_rel, reliability=reliability, n_distractors=n_distractors)
+        check_at_least(
+            0, c_rel=c_rel, reliability=reliability, n_distractors=n_distractors, seed=seed
+        )
         if not 0.0 <= tip_probability <= 1.0:
             raise ValueError(f"tip_probability must be in [0, 1], got {tip_probability}")
         self.objects = tuple(str(o) for o in objects)
@@ -299,11 +322,9 @@ class GraspExperiment:
                 )
             n = self.trials_per_cycle
             for k in range(len(learner.history), self.cycles):
-                base = LEARN_SEED_BASE + 100_000 * k
                 found = []
-                stats = learner.run_cycle(
-                    runner, n, range(base, base + n), generator, step, records=found
-                )
+                placements = learning_placements(self.seed, k, n)
+                stats = learner.run_cycle(runner, n, placements, generator, step, records=found)
                 records.extend({"phase": "learning", "cycle": k, **f} for f in found)
                 # Everything the next cycle needs, so that a stop loses at most this cycle.
                 state = {
