@@ -93,7 +93,13 @@ def main() -> None:
         help="power of the local success rate in a success's weight in the learned density "
         "(learning explores with the rate itself, or this power if lower); 0 is the paper's",
     )
-    parser.add_argument("--seed", type=int, default=defaults["seed"])
+    parser.add_argument(
+        "--seed",
+        type=non_negative_int,
+        default=defaults["seed"],
+        help="seed of the grasp draws and the learning placements (the held-out placements "
+        "are the same for every seed)",
+    )
     parser.add_argument("--quick", action="store_true", help="2 cycles of 10, 10 eval trials")
     args = parser.parse_args()
     if args.cycles * args.trials_per_cycle > 300:
