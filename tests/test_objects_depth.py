@@ -7,6 +7,7 @@ import roma
 import torch
 
 from vistask.objects import NBP, DepthCheck, ObjectModel
+from vistask.objects.model import SURFACE_POINTS
 from vistask.vision import (
     Camera,
     Patches,
@@ -14,6 +15,7 @@ from vistask.vision import (
     Symmetry,
     intrinsics_from_fovy,
     look_at,
+    object_surface,
     pose_error,
 )
 from vistask.vision.camera import pixel_grid
@@ -41,6 +43,18 @@ def _view(eye: tuple[float, float, float], size: int = 96) -> RGBDView:
     plane = -eye_t[2] / rays[..., 2]
     depth = torch.where((far >= near) & (near > 0), near, plane)
     return RGBDView(torch.zeros(size, size, 3, dtype=torch.uint8), depth, camera)
+
+
+def _painted_view(eye: tuple[float, float, float]) -> RGBDView:
+    """``_view`` with the box's half x < 0 red and x > 0 blue on a grey table, and the box
+    segmented as label 0."""
+    view = _view(eye)
+    points = view.camera.backproject(pixel_grid(*view.depth.shape), view.depth).float()
+    on_box = (points[..., 2] > 1e-4) & (points[..., :2].abs() <= HALF[:2] + 1e-4).all(-1)
+    rgb = torch.full((*view.depth.shape, 3), 128, dtype=torch.uint8)
+    rgb[on_box & (points[..., 0] < 0)] = torch.tensor([200, 40, 40], dtype=torch.uint8)
+    rgb[on_box & (points[..., 0] >= 0)] = torch.tensor([40, 40, 200], dtype=torch.uint8)
+    return RGBDView(rgb, view.depth, view.camera, torch.where(on_box, 0, 1))
 
 
 def _box_points(step: float = 0.008) -> torch.Tensor:
@@ -83,6 +97,20 @@ def _box_patches() -> Patches:
     directions[face == 0] = torch.tensor([1.0, 0.0, 0.0])
     pairs = torch.rand(len(on_face), 2, 3, generator=torch.Generator().manual_seed(0))
     return Patches(points, directions, pairs[face], normals)
+
+
+def _relit_with_strays(box: Patches) -> Patches:
+    """The box's patches with colours of no class (another light), and four stray patches
+    25-32 cm away that look like its top."""
+    relit = Patches(box.positions, box.directions, torch.full_like(box.colors, 0.5), box.normals)
+    strays = box.select(box.normals[:, 2] > 0.5).select(torch.arange(4))
+    strays = Patches(
+        strays.positions + torch.tensor([0.25, 0.2, 0.0]),
+        strays.directions,
+        strays.colors,
+        strays.normals,
+    )
+    return Patches.cat([relit, strays])
 
 
 @pytest.fixture(scope="module")
@@ -137,15 +165,7 @@ def test_nbp_finds_by_depth_an_object_whose_appearance_misleads(check: DepthChec
     # pairs and screened against the depth, which alone scores so few matches, find the box.
     box = _box_patches()
     model = ObjectModel.learn(box, "box", n_classes=5)
-    relit = Patches(box.positions, box.directions, torch.full_like(box.colors, 0.5), box.normals)
-    strays = box.select(box.normals[:, 2] > 0.5).select(torch.arange(4))
-    strays = Patches(
-        strays.positions + torch.tensor([0.25, 0.2, 0.0]),
-        strays.directions,
-        strays.colors,
-        strays.normals,
-    )
-    scene = Patches.cat([relit, strays])
+    scene = _relit_with_strays(box)
     assert (model.classify(scene.colors, radius_scale=2.0) >= 0).sum() == 4
     # Without appearance the box fits the depth as well turned by a half turn about any of
     # its axes through its centre (upside down, it fills the same space).
@@ -207,3 +227,53 @@ def test_a_target_showing_a_few_patches_beside_lookalikes_is_found_by_its_region
             pose = nbp.infer(model, scene, seed=seed, depth=check).pose
             err_t, err_r = pose_error(pose, TRUTH)
             assert bool(err_t < 0.005 and err_r < 3.0) == found
+
+
+def test_colours_under_the_surface_tell_apart_a_turn_that_the_shape_allows() -> None:
+    # The box turned half a turn fills the same space; only its two colours tell the turns.
+    views = [_painted_view((0.35, -0.3, 0.35)), _painted_view((-0.3, -0.35, 0.3))]
+    check = DepthCheck(views, floor_z=0.0)
+    surface = object_surface(views, TRUTH.expand(2, 7))
+    assert surface.shape[1] == 6 and (surface[:, 2] > 0).all()  # the box's points, not the table's
+    left = surface[:, 0] < -0.01
+    assert (surface[left, 3] > 0.7).all() and (
+        surface[~left & (surface[:, 0] > 0.01), 5] > 0.7
+    ).all()
+    poses = torch.stack([TRUTH, _moved(0, 0, 0, 180.0), _moved(0, 0, 0, 90.0)])
+    fit = check.weights(poses[:2], _box_points())
+    assert fit[0] > 0.9 and torch.isclose(fit[0], fit[1], atol=0.02)  # the depth cannot tell
+    agreement = check.colour_agreement(poses, surface, sigma=0.015)
+    assert agreement[0] > 0.9 and agreement[1] < 0.1 and agreement[0] > agreement[2]
+    # Points that the depth does not explain do not count: a box 5 cm aside scores nothing.
+    assert check.colour_agreement(_moved(0.2, 0.2, 0.0)[None], surface, 0.015) == 0
+
+
+def test_a_model_keeps_its_surface_through_save_and_load(tmp_path) -> None:
+    view = _painted_view((0.35, -0.3, 0.35))
+    surface = object_surface([view], TRUTH[None])
+    model = ObjectModel.learn(_box_patches(), "box", surface=surface)
+    assert len(model.surface) == min(len(surface), SURFACE_POINTS)
+    model.save(tmp_path / "box.pt")
+    assert torch.equal(ObjectModel.load(tmp_path / "box.pt").surface, model.surface)
+    with pytest.raises(ValueError, match=r"\(S, 6\)"):
+        ObjectModel.learn(_box_patches(), "box", surface=surface[:, :3])
+
+
+def test_nbp_takes_the_turn_that_its_surface_colours_tell() -> None:
+    # The box's patches show colours of no class (another light), as above, so the depth
+    # finds it up to its half turns, and patch directions lead to the true turn. Its
+    # surface's colours learned from the box turned half a turn (red at x > 0) lead NBP to
+    # that turn instead: the colours decide.
+    views = [_painted_view((0.35, -0.3, 0.35)), _painted_view((-0.3, -0.35, 0.3))]
+    check = DepthCheck(views, floor_z=0.0)
+    box = _box_patches()
+    scene = _relit_with_strays(box)
+    turned = _moved(0.0, 0.0, 0.0, 180.0)
+    nbp = NBP(n_particles=400, mode_starts=24)
+    for surface, expected in ((None, TRUTH), (object_surface(views, turned.expand(2, 7)), turned)):
+        model = ObjectModel.learn(box, "box", n_classes=5, surface=surface)
+        for seed in range(2):
+            err_t, err_r = pose_error(
+                nbp.infer(model, scene, seed=seed, depth=check).pose, expected
+            )
+            assert err_t < 0.005 and err_r < 3.0

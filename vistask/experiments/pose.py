@@ -34,7 +34,15 @@ from vistask.objects import NBP, DepthCheck, ObjectModel, Open3DRegistration
 from vistask.objects.registration import view_cloud
 from vistask.parallel import Outcome, map_runs
 from vistask.runs import write_summary
-from vistask.vision import Patches, PatchExtractor, RGBDView, pose_error, view_patches
+from vistask.vision import (
+    Patches,
+    PatchExtractor,
+    RGBDView,
+    object_patch_set,
+    object_surface,
+    pose_error,
+    view_patches,
+)
 
 DEFAULT_OBJECTS = ("cereal", "milk", "bread", "hammer", "can", "box")
 METHODS = ("nbp", "open3d", "open3d_dense")
@@ -191,14 +199,15 @@ def learn_object_model(
 ) -> ObjectModel:
     """The object model of ``kind`` from its own views by the learning cameras: upright at
     ``n_rotations`` yaws, and laid on its sides too when ``tipped`` (and it may tip), one
-    patch per ``voxel``."""
-    from vistask.envs.tabletop import object_patches
+    patch per ``voxel``, with its surface's colours from the same views."""
+    from vistask.envs.tabletop import object_views
 
-    parts = [
-        object_patches(kind, n_rotations, LEARNING_CAMERAS, image_size, side, extractor, voxel)
-        for side in _rest_sides(kind, tipped)
-    ]
-    return ObjectModel.learn(Patches.cat(parts), object_name(kind))
+    patches, surfaces = [], []
+    for side in _rest_sides(kind, tipped):
+        views, poses = object_views(kind, n_rotations, LEARNING_CAMERAS, image_size, side)
+        patches.append(object_patch_set(views, poses, 0, extractor, voxel))
+        surfaces.append(object_surface(views, poses, 0, voxel))
+    return ObjectModel.learn(Patches.cat(patches), object_name(kind), surface=torch.cat(surfaces))
 
 
 def _rest_sides(kind: str, tipped: bool) -> tuple[bool, ...]:

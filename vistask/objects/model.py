@@ -34,6 +34,10 @@ from vistask.vision import Patches
 MIN_PATCHES_PER_CLASS = 3
 """An appearance class needs at least this many instances to become a primitive feature."""
 
+SURFACE_POINTS = 2000
+"""Surface points a model keeps (evenly spaced in their order) for the colour check of pose
+hypotheses (``DepthCheck.colour_agreement``)."""
+
 PAIR_TABLE_PATCHES = 512
 """Patches of a model's pair table (``ObjectModel.pair_table``): the table grows with their
 square, 0.07 s to build for 500 patches and 0.8 s for 1339 (the cereal box)."""
@@ -113,6 +117,9 @@ class ObjectModel:
         params: the keyword arguments ``learn`` was given (n_classes, sigma_t, sigma_r,
             meta_sigma_t, meta_sigma_r, class_radius, seed) and the ``APPEARANCE``
             descriptor's name.
+        surface: (S, 6) object-frame surface points and their RGB colours in [0, 1]
+            (``vistask.vision.object_surface``), against which NBP checks the colours under
+            its hypotheses; None: no colour check.
     """
 
     name: str
@@ -123,6 +130,7 @@ class ObjectModel:
     labels: Tensor
     grasp_density: SE3KDE | None = None
     params: dict[str, Any] = field(default_factory=dict)
+    surface: Tensor | None = None
     _instances: dict[int, Tensor] = field(default_factory=dict, init=False, repr=False)
     _pair_table: PairTable | None = field(default=None, init=False, repr=False, compare=False)
 
@@ -143,6 +151,7 @@ class ObjectModel:
         meta_sigma_r: float = 0.05,
         class_radius: float = 2.5,
         seed: int = 0,
+        surface: Tensor | None = None,
     ) -> ObjectModel:
         """Learn a model from an object-frame patch set.
 
@@ -158,9 +167,13 @@ class ObjectModel:
             class_radius: an observed colour pair farther than this factor times the class's
                 RMS radius from every centre belongs to no class (clutter of another appearance).
             seed: k-means seed.
+            surface: (S, 6) object-frame surface points and colours from the same views
+                (``vistask.vision.object_surface``); the model keeps ``SURFACE_POINTS`` of
+                them. None: NBP does not check colours.
 
         Raises:
-            ValueError: a bad parameter, patches without normals, or too few patches.
+            ValueError: a bad parameter, patches without normals, too few patches, or a
+                surface not of shape (S, 6).
         """
         if n_classes < 1:
             raise ValueError(f"n_classes must be >= 1, got {n_classes}")
@@ -180,6 +193,8 @@ class ObjectModel:
             raise ValueError(
                 f"too few patches to learn a model: {len(patches)} (need at least {need})"
             )
+        if surface is not None and (surface.dim() != 2 or surface.shape[1] != 6):
+            raise ValueError(f"surface must have shape (S, 6), got {tuple(surface.shape)}")
         patches = patches.to("cpu")
         desc = appearance_descriptors(patches.colors)
         centres, labels = _kmeans(desc, n_classes, seed)
@@ -210,7 +225,9 @@ class ObjectModel:
             "seed": seed,
             "appearance": APPEARANCE,
         }
-        return cls(name, centres, radii, features, patches, labels, None, params)
+        if surface is not None:
+            surface = evenly_spaced(surface.float().cpu(), SURFACE_POINTS)
+        return cls(name, centres, radii, features, patches, labels, None, params, surface)
 
     # --- structure ---------------------------------------------------------------------------
     @property
@@ -298,6 +315,7 @@ class ObjectModel:
             "labels": self.labels.cpu(),
             "grasp_density": grasp,
             "params": self.params,
+            "surface": None if self.surface is None else self.surface.cpu(),
         }
 
     def save(self, path: str | Path) -> None:
@@ -333,6 +351,7 @@ class ObjectModel:
             state["labels"],
             None if grasp is None else SE3KDE.from_state_dict(grasp),
             state["params"],
+            state.get("surface"),  # models saved without one check no colours
         )
 
 

@@ -19,8 +19,12 @@ Every density is an ``SE3KDE`` over world poses of a feature's frame.
   appearance, not the geometry), and the modes of regions of matching patches searched on
   their own (a target that shows a few patches among lookalikes leads no mode of the whole
   scene). Each hypothesis is pulled onto the observed surfaces and its score weighted by the
-  square of how much of the model the depth explains, less what it rules out, and by how
-  many of its points the depth explains against the best hypothesis.
+  square of how much of the model the depth explains, less what it rules out, by how
+  many of its points the depth explains against the best hypothesis, and, where the model
+  holds its surface's colours, by the square of how well they match the pixels under it
+  (``DepthCheck.colour_agreement``): a few patches leave an object's yaw open, its texture
+  under the whole visible surface does not. Draws are screened against the depth images
+  and these colours alike.
 - Top-down: the root's belief is pushed down through the potentials (X_c = X_p ∘ r) and
   reweighted by each child's bottom-up belief (meta) or evidence (primitive), which gives a
   belief for every feature.
@@ -104,7 +108,8 @@ class NBPResult:
         scores: (H,) top-down support of each: the soft count of model patches whose
             predicted pose matches an observed patch of the same appearance; with depth
             images, times the square of the depth weight (or the depth weight alone when
-            too few patches match the appearance).
+            too few patches match the appearance), the share of the most explained points
+            that it explains, and the square of its colour agreement (``NBP.chroma_sigma``).
         object_belief: density of the object pose (the root's belief in the object frame).
         messages: feature index -> bottom-up message to its parent (None without evidence).
         beliefs: feature index -> bottom-up belief of meta-features, and top-down beliefs of
@@ -299,12 +304,15 @@ class NBP:
             classes, they are matched again within classes of ``WIDER_CLASSES`` times the
             radius: other light moves the colours of a plain object, whose classes are
             tight, out of them; the depth alone then scores the hypotheses.
+        chroma_sigma: with depth images and a model that holds its surface's colours, the
+            scale of the chromaticity difference of ``DepthCheck.colour_agreement``, whose
+            square weighs each hypothesis and each screened draw; 0 disables it.
         top_down: also compute every feature's top-down belief.
 
     Raises:
         ValueError: n_particles, n_modes or mode_starts below 1, a bandwidth or color_sigma
-            not positive, floor, refine_sigma_t or min_matches negative, or cutoff not
-            positive.
+            not positive, floor, refine_sigma_t, min_matches or chroma_sigma negative, or
+            cutoff not positive.
     """
 
     def __init__(
@@ -325,6 +333,7 @@ class NBP:
         refine_iters: int = 3,
         color_sigma: float = 0.1,
         min_matches: int = 10,
+        chroma_sigma: float = 0.015,
         top_down: bool = False,
     ) -> None:
         check_at_least(1, n_particles=n_particles, n_modes=n_modes, mode_starts=mode_starts)
@@ -343,6 +352,7 @@ class NBP:
             pair_references=pair_references,
             regions=regions,
             min_matches=min_matches,
+            chroma_sigma=chroma_sigma,
         )
         if cutoff is not None and not cutoff > 0:
             raise ValueError(
@@ -364,6 +374,7 @@ class NBP:
         self.refine_iters = refine_iters
         self.color_sigma = color_sigma
         self.min_matches = min_matches
+        self.chroma_sigma = chroma_sigma
         self.top_down = top_down
 
     def infer(
@@ -434,7 +445,7 @@ class NBP:
                 sources.append(self._region_modes(model, evidence, gen))
             screen = evenly_spaced(points, SCREEN_POINTS)
             for draws in sources:
-                fit = depth.weights(draws.cpu(), screen)
+                fit = depth.weights(draws.cpu(), screen) * self._colours(model, draws, depth, True)
                 best = torch.argsort(fit, descending=True)[: self.n_modes].to(device)
                 candidates = torch.cat([candidates, draws[best]])
         match = SceneMatch.build(model, evidence, self.color_sigma)
@@ -452,6 +463,7 @@ class NBP:
             fit, explained = (x.to(device) for x in depth.explain(candidates.cpu(), points))
             scores = scores * fit**2 if appearance_counts else fit
             scores = scores * explained / explained.max().clamp_min(1)
+            scores = scores * self._colours(model, candidates, depth).to(device)
         order = torch.argsort(scores, descending=True)
         result = NBPResult(
             candidates[order], scores[order], object_belief, messages, beliefs, evidence
@@ -459,6 +471,17 @@ class NBP:
         if self.top_down:
             result.beliefs.update(top_down(model, result, n, sigma_t, sigma_r, self.cutoff, gen))
         return result
+
+    def _colours(
+        self, model: ObjectModel, poses: Tensor, depth: DepthCheck, screen: bool = False
+    ) -> Tensor:
+        """(H,) the square of ``DepthCheck.colour_agreement`` of ``poses`` with the model's
+        surface (``SCREEN_POINTS`` of it to ``screen`` many draws), or ones when the model
+        holds no surface or the check is off."""
+        if model.surface is None or not self.chroma_sigma:
+            return torch.ones(len(poses))
+        surface = evenly_spaced(model.surface, SCREEN_POINTS) if screen else model.surface
+        return depth.colour_agreement(poses.cpu(), surface, self.chroma_sigma) ** 2
 
     def _bottom_up(
         self,

@@ -16,7 +16,7 @@ from vistask.vision.camera import (
 )
 from vistask.vision.patches import Patches, PatchExtractor
 from vistask.vision.symmetry import Symmetry, pose_error
-from vistask.vision.views import object_patch_set, view_patches
+from vistask.vision.views import object_patch_set, object_surface, view_patches
 
 __all__ = [
     "Camera",
@@ -29,6 +29,7 @@ __all__ = [
     "intrinsics_from_fovy",
     "look_at",
     "object_patch_set",
+    "object_surface",
     "pixel_grid",
     "pose_error",
     "project",

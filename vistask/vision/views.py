@@ -5,6 +5,8 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import replace
 
+import roma
+import torch
 from torch import Tensor
 
 from vistask.vision.camera import RGBDView
@@ -76,3 +78,45 @@ def object_patch_set(
         raise ValueError(f"object {label} yields no patch in any of the {len(views)} views")
     merged = replace(Patches.cat(parts), pixels=None)
     return merged if voxel is None else merged.voxel_downsample(voxel)
+
+
+def object_surface(
+    views: Sequence[RGBDView], object_poses: Tensor, label: int = 0, voxel: float = 0.004
+) -> Tensor:
+    """One object's surface points and their colours, merged from several views into its own
+    frame: per view, the object's pixels back-projected and averaged per cubic voxel.
+
+    Example:
+        >>> surface = object_surface(views, poses)  # as for ``object_patch_set``
+        >>> points, colours = surface[:, :3], surface[:, 3:]
+
+    Args:
+        views: V views with segmentation and depth.
+        object_poses: (V, 7) world pose of the object in each view.
+        label: the object's segmentation label.
+        voxel: side (metres) of the voxels whose pixels are averaged, per view.
+
+    Returns:
+        (S, 6) object-frame points and RGB colours in [0, 1].
+
+    Raises:
+        ValueError: mismatched inputs, or the object in none of the views.
+    """
+    if object_poses.shape != (len(views), 7):
+        raise ValueError(
+            f"object_poses must have shape ({len(views)}, 7), got {tuple(object_poses.shape)}"
+        )
+    parts = []
+    for view, pose in zip(views, object_poses, strict=True):
+        try:
+            points, colours = view.point_cloud(view.mask(label))
+        except ValueError:
+            continue  # object hidden in this view
+        local = (points - pose[:3].float()) @ roma.unitquat_to_rotmat(pose[3:].float())
+        _, voxel_of = torch.unique(torch.floor(local / voxel).long(), dim=0, return_inverse=True)
+        n = int(voxel_of.max()) + 1
+        sums = torch.zeros(n, 6).index_add_(0, voxel_of, torch.cat([local, colours], dim=1))
+        parts.append(sums / torch.bincount(voxel_of, minlength=n)[:, None])
+    if not parts:
+        raise ValueError(f"object {label} is in none of the {len(views)} views")
+    return torch.cat(parts)
