@@ -61,6 +61,15 @@ def chromaticity(rgb: Tensor) -> Tensor:
     return rgb / (rgb.sum(dim=-1, keepdim=True) + CHROMA_OFFSET)
 
 
+def _pixels(camera, points: Tensor, H: int, W: int) -> tuple[Tensor, ...]:
+    """(..., 3) world points -> the column and row (...) of the pixel each projects to (not
+    clamped), its depth (...), and whether it lies in front of the camera inside the
+    (H, W) image (...)."""
+    uv, z = camera.project(points)
+    u, v = uv[..., 0].round().long(), uv[..., 1].round().long()
+    return u, v, z, (u >= 0) & (u < W) & (v >= 0) & (v < H) & (z > 0)
+
+
 def evenly_spaced(points: Tensor, k: int) -> Tensor:
     """At most ``k`` of (N, ...) ``points`` (or patch frames), evenly spaced in their order."""
     if len(points) <= k:
@@ -130,9 +139,7 @@ class DepthCheck:
         out = []
         for camera, surface, nearest in self._maps:
             H, W = nearest.shape
-            uv, z = camera.project(points)
-            u, v = uv[..., 0].round().long(), uv[..., 1].round().long()
-            inside = (u >= 0) & (u < W) & (v >= 0) & (v < H) & (z > 0)
+            u, v, z, inside = _pixels(camera, points, H, W)
             uu = (u[..., None] + self._offsets[:, 1]).clamp(0, W - 1)
             vv = (v[..., None] + self._offsets[:, 0]).clamp(0, H - 1)
             around = surface[vv, uu]  # (..., K, 3)
@@ -200,9 +207,7 @@ class DepthCheck:
         total = count = 0
         for (camera, observed, _), chroma in zip(self._maps, self._chroma, strict=True):
             H, W = chroma.shape[:2]
-            uv, z = camera.project(world)
-            u, v = uv[..., 0].round().long(), uv[..., 1].round().long()
-            inside = (u >= 0) & (u < W) & (v >= 0) & (v < H) & (z > 0)
+            u, v, _, inside = _pixels(camera, world, H, W)
             u, v = u.clamp(0, W - 1), v.clamp(0, H - 1)
             # The pixel's own observed point, not the nearest in a window as ``match``
             # finds: its colour is the one compared, and one pixel is 25 times cheaper.
