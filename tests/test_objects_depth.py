@@ -8,6 +8,8 @@ import torch
 
 from vistask.objects import NBP, DepthCheck, ObjectModel
 from vistask.objects.model import SURFACE_POINTS
+from vistask.objects.nbp import turn_about
+from vistask.se3 import apply
 from vistask.vision import (
     Camera,
     Patches,
@@ -277,3 +279,36 @@ def test_nbp_takes_the_turn_that_its_surface_colours_tell() -> None:
                 nbp.infer(model, scene, seed=seed, depth=check).pose, expected
             )
             assert err_t < 0.005 and err_r < 3.0
+
+
+def test_turned_poses_keep_the_centre_and_turn_by_quarter_and_half_turns() -> None:
+    poses = torch.stack([TRUTH, _moved(0.1, -0.2, 0.05, 30.0)])
+    centre = torch.tensor([0.01, -0.02, 0.04])
+    turned = turn_about(poses, centre)
+    assert turned.shape == (18, 7)
+    same = poses.repeat_interleave(9, dim=0)
+    assert torch.allclose(apply(turned, centre), apply(same, centre), atol=1e-6)
+    _, angles = pose_error(turned, same)
+    assert torch.allclose(angles, torch.tensor([90.0, 180.0, 90.0] * 6), atol=0.1)
+
+
+def test_nbp_tries_the_turn_that_no_patch_votes_for() -> None:
+    # The box's patches are where the box turned half a turn would put them, so every
+    # vote points at that turn, which fills the same space; its surface's colours, learned
+    # from the true box, tell the truth, which only the tried turns propose.
+    views = [_painted_view((0.35, -0.3, 0.35)), _painted_view((-0.3, -0.35, 0.3))]
+    check = DepthCheck(views, floor_z=0.0)
+    box = _box_patches()
+    surface = object_surface(views, TRUTH.expand(2, 7))
+    model = ObjectModel.learn(box, "box", n_classes=5, surface=surface)
+    half = roma.rotvec_to_unitquat(torch.tensor([0.0, 0.0, math.pi])).expand(len(box), 4)
+
+    def turn(x: torch.Tensor) -> torch.Tensor:
+        return roma.quat_action(half, x, is_normalized=True)
+
+    scene = Patches(turn(box.positions), turn(box.directions), box.colors, turn(box.normals))
+    for turns in (0, 2):
+        nbp = NBP(n_particles=400, mode_starts=24, pair_references=0, regions=0, turns=turns)
+        for seed in range(2):
+            err_t, err_r = pose_error(nbp.infer(model, scene, seed=seed, depth=check).pose, TRUTH)
+            assert (err_t < 0.005 and err_r < 3.0) if turns else err_r > 170.0
