@@ -5,10 +5,10 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import replace
 
-import roma
 import torch
 from torch import Tensor
 
+from vistask.se3 import apply, inverse
 from vistask.vision.camera import RGBDView
 from vistask.vision.patches import Patches, PatchExtractor
 
@@ -112,7 +112,7 @@ def object_surface(
             points, colours = view.point_cloud(view.mask(label))
         except ValueError:
             continue  # object hidden in this view
-        local = (points - pose[:3].float()) @ roma.unitquat_to_rotmat(pose[3:].float())
+        local = apply(inverse(pose.float()), points)
         _, voxel_of = torch.unique(torch.floor(local / voxel).long(), dim=0, return_inverse=True)
         n = int(voxel_of.max()) + 1
         sums = torch.zeros(n, 6).index_add_(0, voxel_of, torch.cat([local, colours], dim=1))
