@@ -112,23 +112,33 @@ class DepthCheck:
         check_at_least(0, window=window)
         self.floor_z = floor_z
         self.tolerance = tolerance
-        side = torch.arange(-window, window + 1)
-        self._offsets = torch.cartesian_prod(side, side)  # (K, 2) as (dv, du)
+        self.window = window
         self._maps = [self._surface_maps(view, window) for view in views]
         self._chroma = [chromaticity(view.rgb.float() / 255.0) for view in views]
 
     @staticmethod
     def _surface_maps(view: RGBDView, window: int) -> tuple:
-        """The view's camera, its (H, W, 3) back-projected world points (NaN where depth is
-        invalid), and its depth's minimum over the window (inf where none is valid)."""
+        """The view's camera; its back-projected world points as (3, P) coordinate planes
+        over the image padded by ``window`` pixels on every side, row by row (NaN where depth
+        is invalid or outside the image); the (K,) offsets of a pixel's window in that flat
+        order; and the depth's minimum over the window (H, W) (inf where none is valid)."""
         depth = view.depth.float()
+        H, W = depth.shape
         valid = torch.isfinite(depth) & (depth > 0)
-        points = torch.full((*depth.shape, 3), float("nan"))
-        pixels = pixel_grid(view.camera.height, view.camera.width)[valid]
-        points[valid] = view.camera.backproject(pixels, depth[valid]).float()
+        points = torch.full((H + 2 * window, W + 2 * window, 3), float("nan"))
+        pixels = pixel_grid(H, W)[valid]
+        inner = points[window : window + H, window : window + W]
+        inner[valid] = view.camera.backproject(pixels, depth[valid]).float()
+        side = torch.arange(-window, window + 1, dtype=torch.int32)
+        offsets = (side[:, None] * (W + 2 * window) + side[None, :]).flatten()
         far = torch.where(valid, depth, torch.full_like(depth, float("inf")))
         nearest = -F.max_pool2d(-far[None, None], 2 * window + 1, 1, window)[0, 0]
-        return view.camera, points, nearest
+        return view.camera, points.flatten(0, 1).T.contiguous(), offsets, nearest
+
+    def _flat(self, u: Tensor, v: Tensor, W: int) -> Tensor:
+        """(...) pixel columns and rows inside a W pixels wide image -> (...) their indices
+        into the view's padded surface planes."""
+        return ((v + self.window) * (W + 2 * self.window) + (u + self.window)).int()
 
     def match(self, points: Tensor) -> list[tuple[Tensor, ...]]:
         """Per view, for (..., 3) world points: the nearest observed point in each one's
@@ -137,20 +147,23 @@ class DepthCheck:
         whether it is hidden: farther than ``tolerance`` behind the nearest surface around
         its pixel and not explained (...)."""
         out = []
-        for camera, surface, nearest in self._maps:
+        for camera, surface, offsets, nearest in self._maps:
             H, W = nearest.shape
             u, v, z, inside = _pixels(camera, points, H, W)
-            uu = (u[..., None] + self._offsets[:, 1]).clamp(0, W - 1)
-            vv = (v[..., None] + self._offsets[:, 0]).clamp(0, H - 1)
-            around = surface[vv, uu]  # (..., K, 3)
-            dist = torch.nan_to_num((around - points[..., None, :]).norm(dim=-1), nan=torch.inf)
-            dist, k = dist.min(dim=-1)
-            closest = around.gather(-2, k[..., None, None].expand(*k.shape, 1, 3))[..., 0, :]
-            front = nearest[v.clamp(0, H - 1), u.clamp(0, W - 1)]
+            u, v = u.clamp(0, W - 1), v.clamp(0, H - 1)
+            around = self._flat(u, v, W)[..., None] + offsets  # (..., K)
+            # Coordinate by coordinate: a gather of scalars is faster than of 3-vectors.
+            dist = 0
+            for plane, coordinate in zip(surface, points.unbind(-1), strict=True):
+                seen = plane.index_select(0, around.flatten()).view(around.shape)
+                dist = dist + (seen - coordinate[..., None]).square_()
+            dist, k = dist.nan_to_num_(torch.inf).min(dim=-1)
+            closest = surface[:, around.gather(-1, k[..., None])[..., 0]]
+            front = nearest[v, u]
             free = inside & torch.isfinite(front) & (z < front - self.tolerance)
-            dist = torch.where(inside, dist, torch.inf)
+            dist = torch.where(inside, dist.sqrt_(), torch.inf)
             hidden = inside & (dist >= self.tolerance) & (z > front + self.tolerance)
-            out.append((closest, dist, inside, free, hidden))
+            out.append((closest.movedim(0, -1), dist, inside, free, hidden))
         return out
 
     def refine(self, poses: Tensor, points: Tensor, iters: int = 3) -> Tensor:
@@ -205,13 +218,14 @@ class DepthCheck:
         world = apply(poses.float()[:, None], surface[:, :3].float())
         model = chromaticity(surface[:, 3:].float())
         total = count = 0
-        for (camera, observed, _), chroma in zip(self._maps, self._chroma, strict=True):
+        for (camera, observed, _, _), chroma in zip(self._maps, self._chroma, strict=True):
             H, W = chroma.shape[:2]
             u, v, _, inside = _pixels(camera, world, H, W)
             u, v = u.clamp(0, W - 1), v.clamp(0, H - 1)
             # The pixel's own observed point, not the nearest in a window as ``match``
             # finds: its colour is the one compared, and one pixel is 25 times cheaper.
-            near = (observed[v, u] - world).norm(dim=-1) < self.tolerance  # NaN: False
+            seen = observed[:, self._flat(u, v, W)].movedim(0, -1)
+            near = (seen - world).norm(dim=-1) < self.tolerance  # NaN: False
             explained = inside & near
             similar = torch.exp(-0.5 * (chroma[v, u] - model).square().sum(-1) / sigma**2)
             total = total + (similar * explained).sum(-1)
