@@ -116,7 +116,7 @@ def relative(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
 def apply(pose: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
     """Transform points by poses, R p + t: (..., 7) x (..., 3) -> (..., 3), broadcast."""
     # Through rotation matrices: a pose that moves many points is turned into one once,
-    # where quaternion products would be taken for every point (3-5 times faster).
+    # where quaternion products would be taken for every point (1.6-6 times faster).
     rotation = roma.unitquat_to_rotmat(pose[..., 3:])
     return pose[..., :3] + torch.einsum("...ij,...j->...i", rotation, points)
 
