@@ -24,6 +24,7 @@ from vistask.grasp import (
     scripted_teacher_grasps,
     transform_density,
 )
+from vistask.grasp.learning import RELIABILITY_WIDTH, trial_weights
 from vistask.se3 import SE3KDE, compose, identity_poses, make_poses, random_poses
 from vistask.vision import Patches
 
@@ -385,6 +386,28 @@ def test_best_of_k_by_success_rate_picks_the_grasps_that_succeed_again() -> None
     assert near_sure(best) > 0.7  # 1 - 0.85^10 = 0.80 of the placements have a sure draw
     with pytest.raises(ValueError, match="no trials"):
         GraspLearner(proposal).success_rates(grasps[:2])
+
+
+def test_success_rates_for_ranking_see_the_failures_a_centimetre_around() -> None:
+    """A lucky success ringed by failures 12 mm away, against a grasp that failed once among
+    successes: kernels of the reliability's width (4 mm) see only the trials on each and rate
+    the lucky one higher; the ranking's (12 mm) see the rings and rate it lower."""
+    lucky, solid = _pose([0.0, 0.0, 0.0], [0.0, 0.0, 0.0]), _pose([0.1, 0.0, 0.0], [0.0, 0.0, 0.0])
+    angles = torch.arange(10) * (2 * math.pi / 10)
+    ring = 0.012 * torch.stack([angles.cos(), angles.sin(), torch.zeros(10)], dim=1)
+    around = lambda g: torch.cat([g[:3] + ring, g[3:].expand(10, 4)], dim=1)  # noqa: E731
+    grasps = torch.cat([lucky[None], around(lucky), solid.expand(3, 7), around(solid)])
+    success = torch.tensor([True] + [False] * 10 + [True, True, False] + [True] * 10)
+    flat = SE3KDE(identity_poses(1), torch.ones(1), 1.0, 3.0)  # equal importance weights
+    learner = GraspLearner(flat, sigma_t=0.002, sigma_r=0.05)
+    learner.trials.add(grasps, success, cycle=0)
+    learner.proposals.append(flat)
+    w = trial_weights(learner.trials, learner.proposals, learner.c_rel)
+    k = RELIABILITY_WIDTH
+    narrow = local_success_rates(learner.trials, w, k * 0.002, k * 0.05, at=grasps[[0, 11]])
+    assert narrow[0] > narrow[1]
+    rates = learner.success_rates(grasps[[0, 11]])
+    assert rates[0] < 0.3 < 0.8 < rates[1]
 
 
 def test_pooled_cycles_are_weighted_by_the_mixture_of_their_proposals() -> None:

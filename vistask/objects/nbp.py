@@ -636,7 +636,7 @@ class SceneMatch:
         observed: (M, 7) world frames of the scene patches bound to a primitive feature,
             grouped the same way.
         blocks: per feature, its instances' slice of ``instances``, its observations' slice
-            of ``observed``, and their colour similarity exp(-d^2 / 2 s^2) (N_k, M_k).
+            of ``observed``, and the log of their colour similarity, -d^2 / 2 s^2 (N_k, M_k).
     """
 
     instances: Tensor
@@ -663,7 +663,7 @@ class SceneMatch:
                 (
                     slice(n, n + size_n),
                     slice(m, m + size_m),
-                    torch.exp(-0.5 * d2 / color_sigma**2),
+                    -0.5 * d2 / color_sigma**2,
                 )
             )
             n, m = n + size_n, m + size_m
@@ -680,11 +680,13 @@ class SceneMatch:
         pred = self.predict(poses)
         kappa = kernels.quaternion_kappa(sigma_r)
         total = torch.zeros(len(poses), dtype=pred.dtype, device=pred.device)
-        for rows, cols, affinity in self.blocks:
+        floor = kernels.log_floor(pred.dtype)
+        for rows, cols, log_affinity in self.blocks:
             p, o = pred[:, rows], self.observed[cols]
             d2 = torch.cdist(p[..., :3], o[None, :, :3]).square()
             dot = (p[..., 3:] @ o[:, 3:].T).abs()
-            kern = torch.exp(-0.5 * d2 / sigma_t**2 + kappa * (dot - 1.0)) * affinity
+            log_kern = -0.5 * d2 / sigma_t**2 + kappa * (dot - 1.0) + log_affinity
+            kern = log_kern.clamp_(min=floor).exp_()
             total = total + kern.amax(dim=2).sum(dim=1)
         return total
 
@@ -696,16 +698,17 @@ class SceneMatch:
         three matching instances stays where it is."""
         obs_t, obs_n = self.observed[:, :3], _normals(self.observed)
         source = self.instances[:, :3].expand(len(poses), -1, -1)
+        floor = kernels.log_floor(poses.dtype)
         for _ in range(iters):
             pred = self.predict(poses)  # (H, N, 7)
             pred_t, pred_n = pred[..., :3], _normals(pred)
             target, total = torch.zeros_like(pred_t), torch.zeros_like(pred_t[..., 0])
-            for rows, cols, affinity in self.blocks:
+            for rows, cols, log_affinity in self.blocks:
                 # Axial normal agreement keeps patches of other faces out of the match.
                 cos = (pred_n[:, rows] @ obs_n[cols].T).abs()
                 log_kern = -0.5 * torch.cdist(pred_t[:, rows], obs_t[None, cols]).square()
                 log_kern = log_kern / sigma_t**2 + (cos - 1.0) / (1.0 - math.cos(NORMAL_TOLERANCE))
-                kern = torch.exp(log_kern) * affinity
+                kern = (log_kern + log_affinity).clamp_(min=floor).exp_()
                 total[:, rows] = kern.sum(dim=2)
                 target[:, rows] = kern @ obs_t[cols]
             target = target / total.clamp_min(1e-6)[..., None]
