@@ -565,16 +565,17 @@ def pose_pictures(
 def format_table(summary: dict[str, Any]) -> str:
     """A text table of the per-object headline figures."""
     best = f"best of {BEST_OF}"
+    width = max(8, *map(len, summary["objects"]))
     rows = [
-        f"{'':<17} {'hypothesis':^21} {'empirical':^21}",
-        f"{'object':<8} {'poses':<8} {'sampled':>10} {best:>10} {'sampled':>10} {best:>10} "
+        f"{'':<{width + 9}} {'hypothesis':^21} {'empirical':^21}",
+        f"{'object':<{width}} {'poses':<8} {'sampled':>10} {best:>10} {'sampled':>10} {best:>10} "
         f"{'trials':>6} {'pose err':>9} {'trials/min':>10}",
     ]
     for name, r in summary["objects"].items():
         error = r["mean_pose_error_cm"]
         error_text = "-" if error is None else f"{error:.2f} cm"
         rows.append(
-            f"{name:<8} {r['pose_source']:<8} {r['hypothesis_success']:>10.2f} "
+            f"{name:<{width}} {r['pose_source']:<8} {r['hypothesis_success']:>10.2f} "
             f"{r[f'hypothesis_best_of_{BEST_OF}_success']:>10.2f} "
             f"{r['empirical_success']:>10.2f} {r[f'best_of_{BEST_OF}_success']:>10.2f} "
             f"{r['trials']:>6d} {error_text:>9} {r['trials_per_minute']:>10.1f}"

@@ -1,0 +1,189 @@
+"""How well a learned grasp density's best-of-K draw is ranked, behind
+``scripts/bench_grasp_ranking.py``.
+
+For an object that ``scripts/learn_grasps.py`` finished, every one of the K candidates its
+best-of-K evaluation drew on each held-out placement is executed on that placement, acting
+on the pose the run estimated there (recorded in ``trials.jsonl``). With all outcomes known,
+any ranking of the candidates can be scored at once: here the success rates of the learning
+trials (``local_success_rates``) at several kernel widths, against picking the first
+candidate, the average candidate, and the best any ranking could do (some candidate
+succeeds). Trials are deterministic for a placement and a grasp, so the width the library
+uses (``RANKING_WIDTH``) scores what the run's own best-of-K evaluation measured.
+
+The outcomes are kept in ``<object>/candidates.pt`` of the run, so that ranking again costs
+no simulation.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from vistask.experiments.grasps import BEST_OF, CHECKPOINT, EVAL_SEED_BASE
+from vistask.grasp.learning import (
+    RANKING_WIDTH,
+    GraspLearner,
+    draw_reachable,
+    local_success_rates,
+    trial_seeds,
+    trial_weights,
+)
+from vistask.runs import write_summary
+from vistask.saving import load_state, save_state
+
+CANDIDATES = "GraspCandidateOutcomes"  # the kind of file of an object's candidate outcomes
+WIDTHS = (2.0, 4.0, RANKING_WIDTH, 8.0)
+
+
+def best_of_k_draws(learner: GraspLearner, generator_state: torch.Tensor, poses: torch.Tensor):
+    """The K candidates per placement that the run's best-of-K evaluation of the learned
+    density drew, in its order.
+
+    ``GraspExperiment.learn_object`` evaluates the learned density after the last cycle,
+    sampled and then best of K; each draws one seed per trial from the run's generator
+    (``trial_seeds``), and the trial's own generator then draws its candidates.
+
+    Args:
+        learner: the learner of the run's checkpoint.
+        generator_state: the run's generator state after the last cycle (the checkpoint's).
+        poses: (P, 7) the poses acted on at the held-out placements, in order.
+
+    Returns:
+        (P, K, 7) object-frame candidates, (P, K, 7) world candidates, (P, K) bool reachable,
+        (P,) bool drawn from the hypothesis (the learned density had none in reach).
+    """
+    density, generator = learner.empirical, torch.Generator()
+    generator.set_state(generator_state)
+    trial_seeds(generator, len(poses))  # the sampled evaluation's
+    seeds = trial_seeds(generator, len(poses))
+    local, world, ok, fallback = [], [], [], []
+    for pose, seed in zip(poses, seeds, strict=True):
+        g = torch.Generator().manual_seed(seed)
+        drawn = [draw_reachable(density, pose[None], learner.workspace, g) for _ in range(BEST_OF)]
+        used = not any(bool(d[2]) for d in drawn)
+        if used:  # as ``run_trials``: the same generator goes on with the hypothesis
+            hyp = learner.hypothesis
+            drawn = [draw_reachable(hyp, pose[None], learner.workspace, g) for _ in range(BEST_OF)]
+        parts = [torch.cat(p) for p in zip(*drawn, strict=True)]
+        local.append(parts[0])
+        world.append(parts[1])
+        ok.append(parts[2])
+        fallback.append(used)
+    return torch.stack(local), torch.stack(world), torch.stack(ok), torch.tensor(fallback)
+
+
+def candidate_outcomes(folder: Path, kind: str, placements: int | None = None) -> dict[str, Any]:
+    """Execute every best-of-K candidate of a finished object's held-out placements.
+
+    Args:
+        folder: the object's folder in a ``learn_grasps.py`` run (``checkpoint.pt``,
+            ``trials.jsonl``); the outcomes are saved there as ``candidates.pt`` and reused.
+        kind: the object kind to simulate (as given to ``learn_grasps.py``).
+        placements: the first this many held-out placements (default: all).
+
+    Returns:
+        ``local`` (P, K, 7) candidates, ``ok`` (P, K) reachable, ``success`` (P, K) bool,
+        ``seeds`` (P,) placement seeds.
+    """
+    from vistask.envs.grasp_trial import VectorGraspTrials
+
+    cached = folder / "candidates.pt"
+    if cached.exists():
+        saved = load_state(cached, CANDIDATES)
+        if placements is None or len(saved["seeds"]) >= placements:
+            return {k: v[:placements] for k, v in saved.items()}
+    saved = load_state(folder / "checkpoint.pt", CHECKPOINT)
+    learner = GraspLearner.from_state_dict(saved["learner"])
+    config = json.loads((folder.parent / "config.json").read_text())
+    estimates = {}
+    with (folder / "trials.jsonl").open() as f:
+        for line in f:
+            record = json.loads(line)
+            if record["phase"] == "empirical":
+                estimates[record["seed"]] = record.get("estimated_pose", record["object_pose"])
+    if not estimates:
+        raise ValueError(f"{folder} has no held-out trials of a learned density: finish the run")
+    seeds = sorted(estimates)[:placements]
+    poses = torch.tensor([estimates[s] for s in seeds], dtype=torch.float32)
+    local, world, ok, _ = best_of_k_draws(learner, saved["generator"], poses)
+    env_kwargs = {k: config[k] for k in ("n_distractors", "tip_probability")}
+    runner = VectorGraspTrials(kind, 2, None, **env_kwargs)
+    success = torch.zeros(ok.shape, dtype=torch.bool)
+    try:
+        from tqdm import tqdm
+
+        for i in tqdm(range(len(seeds)), desc=folder.name, unit="placement"):
+            for j in range(0, BEST_OF, 2):  # two candidates at a time, each on a new reset
+                pair = world[i, j : j + 2]
+                runner.reset([seeds[i], seeds[i]])
+                outcome = runner.execute(pair.expand(2, 7) if len(pair) == 1 else pair)[0]
+                success[i, j : j + 2] = outcome[: len(pair)]
+    finally:
+        runner.close()
+    result = {"local": local, "ok": ok, "success": success, "seeds": torch.tensor(seeds)}
+    save_state(cached, CANDIDATES, result)
+    return result
+
+
+def ranked_success(
+    learner: GraspLearner, outcomes: dict[str, Any], widths: Sequence[float] = WIDTHS
+) -> dict[str, float]:
+    """Best-of-K success when the candidates are ranked by the learning trials' success rates
+    at each of ``widths`` (times the density's kernels), and three references: the first
+    candidate, the average candidate, and any candidate (the best a ranking could do)."""
+    local, ok, success = outcomes["local"], outcomes["ok"], outcomes["success"]
+    rows = torch.arange(len(success))
+    w = trial_weights(learner.trials, learner.proposals, learner.c_rel)
+    result = {}
+    for k in widths:
+        rates = local_success_rates(
+            learner.trials, w, k * learner.sigma_t, k * learner.sigma_r, at=local.reshape(-1, 7)
+        ).view(ok.shape)
+        pick = torch.where(ok, rates, -1.0).argmax(dim=1)
+        result[f"width {k:g}"] = _rate(success[rows, pick])
+    result["first"] = _rate(success[:, 0])
+    result["mean"] = _rate(success)
+    result["any"] = _rate(success.any(dim=1))
+    return result
+
+
+def _rate(success: torch.Tensor) -> float:
+    return round(success.double().mean().item(), 4)
+
+
+def bench_grasp_ranking(
+    runs: Sequence[Path], placements: int | None = None, out: Path | None = None
+) -> dict[str, dict[str, float]]:
+    """Rank the best-of-K candidates of every finished object in ``runs``; print a table
+    and write it as JSON (``out``, default ``<first run>/ranking.json``).
+
+    Returns:
+        per ``<run>/<object>`` the figures of ``ranked_success``.
+    """
+    from vistask.envs.objects import object_name
+
+    table = {}
+    for run in runs:
+        kinds = json.loads((run / "config.json").read_text())["objects"]
+        for kind in kinds:
+            folder = run / object_name(kind)
+            if not (folder / "trials.jsonl").exists():
+                continue
+            outcomes = candidate_outcomes(folder, kind, placements)
+            saved = load_state(folder / "checkpoint.pt", CHECKPOINT)
+            learner = GraspLearner.from_state_dict(saved["learner"])
+            table[f"{run.name}/{folder.name}"] = ranked_success(learner, outcomes)
+    if not table:
+        raise ValueError(f"no finished object in {[str(r) for r in runs]}")
+    names = list(next(iter(table.values())))
+    print(f"{'best of ' + str(BEST_OF):34s}" + "".join(f"{n:>10s}" for n in names))
+    for key, row in table.items():
+        print(f"{key:34s}" + "".join(f"{row[n]:10.2f}" for n in names))
+    path = out or runs[0] / "ranking.json"
+    write_summary(path, {"placements": placements, "held_out_seed_base": EVAL_SEED_BASE, **table})
+    print(f"wrote {path}")
+    return table
