@@ -24,7 +24,7 @@ from vistask.grasp import (
     scripted_teacher_grasps,
     transform_density,
 )
-from vistask.grasp.learning import RELIABILITY_WIDTH, trial_weights
+from vistask.grasp.learning import RELIABILITY_WIDTH
 from vistask.se3 import SE3KDE, compose, identity_poses, make_poses, random_poses
 from vistask.vision import Patches
 
@@ -402,9 +402,7 @@ def test_success_rates_for_ranking_see_the_failures_a_centimetre_around() -> Non
     learner = GraspLearner(flat, sigma_t=0.002, sigma_r=0.05)
     learner.trials.add(grasps, success, cycle=0)
     learner.proposals.append(flat)
-    w = trial_weights(learner.trials, learner.proposals, learner.c_rel)
-    k = RELIABILITY_WIDTH
-    narrow = local_success_rates(learner.trials, w, k * 0.002, k * 0.05, at=grasps[[0, 11]])
+    narrow = learner.success_rates(grasps[[0, 11]], width=RELIABILITY_WIDTH)
     assert narrow[0] > narrow[1]
     rates = learner.success_rates(grasps[[0, 11]])
     assert rates[0] < 0.3 < 0.8 < rates[1]

@@ -24,14 +24,7 @@ from typing import Any
 import torch
 
 from vistask.experiments.grasps import BEST_OF, CHECKPOINT, EVAL_SEED_BASE
-from vistask.grasp.learning import (
-    RANKING_WIDTH,
-    GraspLearner,
-    draw_reachable,
-    local_success_rates,
-    trial_seeds,
-    trial_weights,
-)
+from vistask.grasp.learning import RANKING_WIDTH, GraspLearner, draw_candidates, trial_seeds
 from vistask.runs import write_summary
 from vistask.saving import load_state, save_state
 
@@ -39,13 +32,16 @@ CANDIDATES = "GraspCandidateOutcomes"  # the kind of file of an object's candida
 WIDTHS = (2.0, 4.0, RANKING_WIDTH, 8.0)
 
 
-def best_of_k_draws(learner: GraspLearner, generator_state: torch.Tensor, poses: torch.Tensor):
+def best_of_k_draws(
+    learner: GraspLearner, generator_state: torch.Tensor, poses: torch.Tensor
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """The K candidates per placement that the run's best-of-K evaluation of the learned
     density drew, in its order.
 
     ``GraspExperiment.learn_object`` evaluates the learned density after the last cycle,
     sampled and then best of K; each draws one seed per trial from the run's generator
-    (``trial_seeds``), and the trial's own generator then draws its candidates.
+    (``trial_seeds``), and the trial's own generator then draws its candidates, from the
+    hypothesis where the learned density has none in reach (as ``run_trials``).
 
     Args:
         learner: the learner of the run's checkpoint.
@@ -53,36 +49,34 @@ def best_of_k_draws(learner: GraspLearner, generator_state: torch.Tensor, poses:
         poses: (P, 7) the poses acted on at the held-out placements, in order.
 
     Returns:
-        (P, K, 7) object-frame candidates, (P, K, 7) world candidates, (P, K) bool reachable,
-        (P,) bool drawn from the hypothesis (the learned density had none in reach).
+        (P, K, 7) object-frame candidates, (P, K, 7) world candidates, (P, K) bool reachable.
     """
-    density, generator = learner.empirical, torch.Generator()
+    generator = torch.Generator()
     generator.set_state(generator_state)
     trial_seeds(generator, len(poses))  # the sampled evaluation's
     seeds = trial_seeds(generator, len(poses))
-    local, world, ok, fallback = [], [], [], []
+    draws = []
     for pose, seed in zip(poses, seeds, strict=True):
         g = torch.Generator().manual_seed(seed)
-        drawn = [draw_reachable(density, pose[None], learner.workspace, g) for _ in range(BEST_OF)]
-        used = not any(bool(d[2]) for d in drawn)
-        if used:  # as ``run_trials``: the same generator goes on with the hypothesis
-            hyp = learner.hypothesis
-            drawn = [draw_reachable(hyp, pose[None], learner.workspace, g) for _ in range(BEST_OF)]
-        parts = [torch.cat(p) for p in zip(*drawn, strict=True)]
-        local.append(parts[0])
-        world.append(parts[1])
-        ok.append(parts[2])
-        fallback.append(used)
-    return torch.stack(local), torch.stack(world), torch.stack(ok), torch.tensor(fallback)
+        for density in (learner.empirical, learner.hypothesis):
+            drawn = draw_candidates(density, pose[None], learner.workspace, g, candidates=BEST_OF)
+            if drawn[2].any():
+                break
+        draws.append([part[:, 0] for part in drawn])  # (K, .) of this placement
+    local, world, ok = (torch.stack(parts) for parts in zip(*draws, strict=True))
+    return local, world, ok
 
 
-def candidate_outcomes(folder: Path, kind: str, placements: int | None = None) -> dict[str, Any]:
+def candidate_outcomes(
+    folder: Path, kind: str, checkpoint: dict[str, Any], placements: int | None = None
+) -> dict[str, Any]:
     """Execute every best-of-K candidate of a finished object's held-out placements.
 
     Args:
-        folder: the object's folder in a ``learn_grasps.py`` run (``checkpoint.pt``,
-            ``trials.jsonl``); the outcomes are saved there as ``candidates.pt`` and reused.
+        folder: the object's folder in a ``learn_grasps.py`` run (``trials.jsonl``); the
+            outcomes are saved there as ``candidates.pt`` and reused.
         kind: the object kind to simulate (as given to ``learn_grasps.py``).
+        checkpoint: the state of the object's ``checkpoint.pt`` (its learner and generator).
         placements: the first this many held-out placements (default: all).
 
     Returns:
@@ -96,8 +90,7 @@ def candidate_outcomes(folder: Path, kind: str, placements: int | None = None) -
         saved = load_state(cached, CANDIDATES)
         if placements is None or len(saved["seeds"]) >= placements:
             return {k: v[:placements] for k, v in saved.items()}
-    saved = load_state(folder / "checkpoint.pt", CHECKPOINT)
-    learner = GraspLearner.from_state_dict(saved["learner"])
+    learner = GraspLearner.from_state_dict(checkpoint["learner"])
     config = json.loads((folder.parent / "config.json").read_text())
     estimates = {}
     with (folder / "trials.jsonl").open() as f:
@@ -109,7 +102,7 @@ def candidate_outcomes(folder: Path, kind: str, placements: int | None = None) -
         raise ValueError(f"{folder} has no held-out trials of a learned density: finish the run")
     seeds = sorted(estimates)[:placements]
     poses = torch.tensor([estimates[s] for s in seeds], dtype=torch.float32)
-    local, world, ok, _ = best_of_k_draws(learner, saved["generator"], poses)
+    local, world, ok = best_of_k_draws(learner, checkpoint["generator"], poses)
     env_kwargs = {k: config[k] for k in ("n_distractors", "tip_probability")}
     runner = VectorGraspTrials(kind, 2, None, **env_kwargs)
     success = torch.zeros(ok.shape, dtype=torch.bool)
@@ -137,12 +130,9 @@ def ranked_success(
     candidate, the average candidate, and any candidate (the best a ranking could do)."""
     local, ok, success = outcomes["local"], outcomes["ok"], outcomes["success"]
     rows = torch.arange(len(success))
-    w = trial_weights(learner.trials, learner.proposals, learner.c_rel)
     result = {}
     for k in widths:
-        rates = local_success_rates(
-            learner.trials, w, k * learner.sigma_t, k * learner.sigma_r, at=local.reshape(-1, 7)
-        ).view(ok.shape)
+        rates = learner.success_rates(local.reshape(-1, 7), width=k).view(ok.shape)
         pick = torch.where(ok, rates, -1.0).argmax(dim=1)
         result[f"width {k:g}"] = _rate(success[rows, pick])
     result["first"] = _rate(success[:, 0])
@@ -173,9 +163,9 @@ def bench_grasp_ranking(
             folder = run / object_name(kind)
             if not (folder / "trials.jsonl").exists():
                 continue
-            outcomes = candidate_outcomes(folder, kind, placements)
-            saved = load_state(folder / "checkpoint.pt", CHECKPOINT)
-            learner = GraspLearner.from_state_dict(saved["learner"])
+            checkpoint = load_state(folder / "checkpoint.pt", CHECKPOINT)
+            outcomes = candidate_outcomes(folder, kind, checkpoint, placements)
+            learner = GraspLearner.from_state_dict(checkpoint["learner"])
             table[f"{run.name}/{folder.name}"] = ranked_success(learner, outcomes)
     if not table:
         raise ValueError(f"no finished object in {[str(r) for r in runs]}")

@@ -149,20 +149,39 @@ def draw_reachable(
     Returns:
         (B, 7) object-frame grasps, (B, 7) world grasps, (B,) bool reachable.
     """
+    local, world, ok = draw_candidates(
+        density, object_poses, workspace, generator, max_draws, candidates
+    )
+    if candidates == 1:
+        return local[0], world[0], ok[0]
+    rating = (density.evaluate if score is None else score)(local.reshape(-1, 7))
+    rating = torch.where(ok, rating.reshape(ok.shape), torch.full_like(ok, -1.0, dtype=local.dtype))
+    best = rating.argmax(dim=0)
+    pick = torch.arange(len(object_poses))
+    return local[best, pick], world[best, pick], ok[best, pick]
+
+
+def draw_candidates(
+    density: SE3KDE,
+    object_poses: torch.Tensor,
+    workspace: Workspace | None = None,
+    generator: torch.Generator | None = None,
+    max_draws: int = 4096,
+    candidates: int = 1,
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """The candidates ``draw_reachable`` chooses among: ``candidates`` reachable draws per
+    object pose, in the order drawn (see ``draw_reachable`` for the arguments).
+
+    Returns:
+        (K, B, 7) object-frame grasps, (K, B, 7) world grasps, (K, B) bool reachable.
+    """
     check_at_least(1, candidates=candidates, max_draws=max_draws)
     object_poses = check_poses(object_poses, "object_poses", batched=True).to(density.points)
     draws = [
         _draw_reachable_once(density, object_poses, workspace, generator, max_draws)
         for _ in range(candidates)
     ]
-    if candidates == 1:
-        return draws[0]
-    local, world, ok = (torch.stack(parts) for parts in zip(*draws, strict=True))  # (K, B, .)
-    rating = (density.evaluate if score is None else score)(local.reshape(-1, 7))
-    rating = torch.where(ok, rating.reshape(ok.shape), torch.full_like(ok, -1.0, dtype=local.dtype))
-    best = rating.argmax(dim=0)
-    pick = torch.arange(len(object_poses))
-    return local[best, pick], world[best, pick], ok[best, pick]
+    return tuple(torch.stack(parts) for parts in zip(*draws, strict=True))
 
 
 def _draw_reachable_once(
@@ -429,18 +448,18 @@ class GraspLearner:
         # The trials are kept on the CPU; the learned densities live where the hypothesis does.
         return None if density is None else density.to(self.hypothesis.device)
 
-    def success_rates(self, grasps: torch.Tensor) -> torch.Tensor:
+    def success_rates(self, grasps: torch.Tensor, width: float = RANKING_WIDTH) -> torch.Tensor:
         """(M, 7) object-frame grasps -> (M,) the success rate of the trials around each.
 
         The kernel regression of ``local_success_rates`` over every trial so far (failures
-        too), with kernels ``RANKING_WIDTH`` times the empirical density's. It ranks the
-        candidates of a best-of-K draw by how often grasps like them succeeded, where the
-        density's value ranks them by how many successes lie near them."""
+        too), with kernels ``width`` times the empirical density's. It ranks the candidates
+        of a best-of-K draw by how often grasps like them succeeded, where the density's
+        value ranks them by how many successes lie near them."""
         if len(self.trials) == 0:
             raise ValueError("no trials yet: run a cycle before estimating success rates")
         w = trial_weights(self.trials, self.proposals, self.c_rel)
-        k = RANKING_WIDTH
-        rates = local_success_rates(self.trials, w, k * self.sigma_t, k * self.sigma_r, at=grasps)
+        sigma_t, sigma_r = width * self.sigma_t, width * self.sigma_r
+        rates = local_success_rates(self.trials, w, sigma_t, sigma_r, at=grasps)
         return rates.to(grasps.device)
 
     def run_cycle(

@@ -680,13 +680,11 @@ class SceneMatch:
         pred = self.predict(poses)
         kappa = kernels.quaternion_kappa(sigma_r)
         total = torch.zeros(len(poses), dtype=pred.dtype, device=pred.device)
-        floor = kernels.log_floor(pred.dtype)
         for rows, cols, log_affinity in self.blocks:
             p, o = pred[:, rows], self.observed[cols]
             d2 = torch.cdist(p[..., :3], o[None, :, :3]).square()
             dot = (p[..., 3:] @ o[:, 3:].T).abs()
-            log_kern = -0.5 * d2 / sigma_t**2 + kappa * (dot - 1.0) + log_affinity
-            kern = log_kern.clamp_(min=floor).exp_()
+            kern = kernels.floored_exp_(-0.5 * d2 / sigma_t**2 + kappa * (dot - 1.0) + log_affinity)
             total = total + kern.amax(dim=2).sum(dim=1)
         return total
 
@@ -698,7 +696,6 @@ class SceneMatch:
         three matching instances stays where it is."""
         obs_t, obs_n = self.observed[:, :3], _normals(self.observed)
         source = self.instances[:, :3].expand(len(poses), -1, -1)
-        floor = kernels.log_floor(poses.dtype)
         for _ in range(iters):
             pred = self.predict(poses)  # (H, N, 7)
             pred_t, pred_n = pred[..., :3], _normals(pred)
@@ -708,7 +705,7 @@ class SceneMatch:
                 cos = (pred_n[:, rows] @ obs_n[cols].T).abs()
                 log_kern = -0.5 * torch.cdist(pred_t[:, rows], obs_t[None, cols]).square()
                 log_kern = log_kern / sigma_t**2 + (cos - 1.0) / (1.0 - math.cos(NORMAL_TOLERANCE))
-                kern = (log_kern + log_affinity).clamp_(min=floor).exp_()
+                kern = kernels.floored_exp_(log_kern + log_affinity)
                 total[:, rows] = kern.sum(dim=2)
                 target[:, rows] = kern @ obs_t[cols]
             target = target / total.clamp_min(1e-6)[..., None]

@@ -29,6 +29,11 @@ def log_floor(dtype: torch.dtype) -> float:
     return math.log(torch.finfo(dtype).tiny * WEIGHT_HEADROOM)
 
 
+def floored_exp_(exponents: torch.Tensor) -> torch.Tensor:
+    """exp() of kernel exponents in place, each first raised to ``log_floor`` of its dtype."""
+    return exponents.clamp_(min=log_floor(exponents.dtype)).exp_()
+
+
 # Narrowest bandwidths a kernel can hold: a float32 pose resolves about 1e-7 m at 1 m and
 # 1e-7 rad, and the float64 terms below keep a kernel's exponent to 1e-6 down to these.
 SIGMA_T_MIN = 1e-5  # metres
@@ -328,10 +333,8 @@ def kernel_block(
         if cutoff is not None:
             # pos = -d^2 / (2 s^2); truncate d > cutoff * s to a value exp() sends to 0.
             F.threshold_(pos, -0.5 * cutoff**2, -1e30)
-        pos.add_(ang).clamp_(min=log_floor(pos.dtype)).exp_()
-        return pos
+        return floored_exp_(pos.add_(ang))
     # Triangular: pos holds d^2; the kernel is max(0, 1 - d / (2 s)).
     pos.clamp_(min=0.0).sqrt_().mul_(-0.5 / terms.sigma_t).add_(1.0)
     F.threshold_(pos, 1.0 - 0.5 * min(cutoff, 2.0) if cutoff is not None else 0.0, 0.0)
-    ang.clamp_(min=log_floor(ang.dtype)).exp_()
-    return pos.mul_(ang)
+    return pos.mul_(floored_exp_(ang))
