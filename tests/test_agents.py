@@ -12,7 +12,12 @@ from stable_baselines3.common.callbacks import CheckpointCallback, EvalCallback
 from vistask.agents import RLVCAgent, TabularQAgent
 from vistask.envs import MazeOracle, VisualMazeEnv, evaluate_policy, start_positions
 from vistask.experiments.tasks import MazeTask
-from vistask.experiments.train_rlvc import agent_policy, train_rlvc, true_grid_policy
+from vistask.experiments.train_rlvc import (
+    agent_policy,
+    seen_percepts_policy,
+    train_rlvc,
+    true_grid_policy,
+)
 from vistask.features import VisualFeatureExtractor, propose
 from vistask.features.compounds import presence_of_candidates
 from vistask.rlvc import ClassTree, VisualClassifier, collect
@@ -33,7 +38,7 @@ def small_maze() -> gym.Env:
 
 @pytest.fixture(scope="module")
 def small_agent() -> RLVCAgent:
-    return RLVCAgent(small_maze(), n_words=512, seed=0).learn(4000)
+    return RLVCAgent(small_maze(), n_words=512, nearest_seen=True, seed=0).learn(4000)
 
 
 def test_rlvc_reaches_near_oracle_return_on_a_small_maze(small_agent):
@@ -49,8 +54,15 @@ def test_rlvc_reaches_near_oracle_return_on_a_small_maze(small_agent):
     database = small_agent.database
     assert len(database) == small_agent.num_timesteps == 4000
     assert database.positions is not None and len(database.positions) == len(database.presence)
-    ceiling = evaluate_policy(maze, true_grid_policy(MazeTask(maze, 1), database, grid=8), starts)
+    task = MazeTask(maze, 1)
+    ceiling = evaluate_policy(maze, true_grid_policy(task, database, grid=8), starts)
     assert ceiling.mean >= 0.9 * oracle
+    # Acting as on the database's percept nearest in true state scores like the agent.
+    greedy = small_agent.rlvc.greedy(database.presence).numpy()
+    seen = evaluate_policy(maze, seen_percepts_policy(task, database, greedy), starts)
+    assert seen.mean >= 0.85 * oracle
+    with pytest.raises(ValueError, match="one action per percept"):
+        seen_percepts_policy(task, database, greedy[1:])
 
 
 def test_true_grid_aggregation_of_random_interactions_is_near_the_oracle():
@@ -115,6 +127,13 @@ def test_agent_save_load_round_trip_gives_identical_classes(small_agent, tmp_pat
     assert np.array_equal(
         loaded.predict(np.stack(images))[0], small_agent.predict(np.stack(images))[0]
     )
+    # New percepts take the class of the nearest percepts learned on, in the agent, in its
+    # classifier and in a classifier saved on its own.
+    presence = small_agent.extractor.presence(images)
+    nearest = small_agent.rlvc.seen.nearest(presence)
+    assert torch.equal(small_agent.classifier.classify(images), nearest)
+    small_agent.classifier.save(tmp_path / "classes.pt")
+    assert torch.equal(VisualClassifier.load(tmp_path / "classes.pt").classify(images), nearest)
 
 
 def test_load_refuses_other_spaces_and_bad_files(small_agent, tmp_path):
@@ -186,7 +205,7 @@ def test_tabular_q_learning_solves_a_deterministic_gridworld(tmp_path):
 
 
 def test_a_second_learn_continues_where_the_first_stopped():
-    agent = RLVCAgent(small_maze(), n_words=256, seed=0).learn(1500)
+    agent = RLVCAgent(small_maze(), n_words=256, nearest_seen=True, seed=0).learn(1500)
     stages, classes = len(agent.rlvc.history), agent.rlvc.n_classes
     first_database = agent.database
     agent.learn(900, reset_num_timesteps=False)
@@ -196,12 +215,15 @@ def test_a_second_learn_continues_where_the_first_stopped():
     assert len(agent.rlvc.history) > stages and agent.rlvc.n_classes >= classes
     agent.learn(300)  # SB3's default: the count restarts, the learning does not
     assert agent.num_timesteps == 300 and len(agent.database) == 2700
+    # It remembers the percepts of every database, the later ones too.
+    assert agent.rlvc.seen.counts.sum() == len(agent.database.presence)
 
 
 def test_the_stage_cap_holds_per_database_and_every_interaction_is_collected():
     agent = RLVCAgent(small_maze(), n_words=256, max_stages=1, databases=3, seed=0).learn(1500)
     assert agent.num_timesteps == 1500 == len(agent.database)
     assert len(agent.rlvc.history) == 3  # one stage after each database
+    assert agent.rlvc.seen is None and agent.classifier.seen is None  # the default: the tree
 
 
 def test_sb3_callbacks_run_once_per_stage_and_can_stop_learning(tmp_path):
@@ -333,6 +355,9 @@ def test_train_rlvc_on_the_car_scores_against_its_oracle_and_draws_it(tmp_path):
         summary["rlvc_return"] / summary["oracle_return"]
     )
     assert summary["oracle_return"] > 0.5  # the oracle reaches the top from every start
+    failing, gap = summary["starts_failing"], summary["return_gap_failing_starts"]
+    assert (failing == 0) == (gap == 0) and gap >= 0  # a failing start loses all it could get
+    assert 0 < summary["seen_percepts_return_ratio"] <= 1.05
     assert summary["velocity_r2_best_word"] < 0.2  # no single word reads the gauge
     assert summary["compounds_made"] >= summary["compound_features"] > 0
     for picture in ("road_and_gauge.png", "car_policy.png", "car_classes.png"):

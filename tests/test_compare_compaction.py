@@ -16,7 +16,15 @@ def test_small_comparison_writes_both_methods_and_the_sawtooth(tmp_path):
     )
     saved = json.loads((tmp_path / "summary.json").read_text())
     for method in ("tree", "bdd"):
-        for key in ("classes", "selected_features", "return_ratio", "test_error", "seconds"):
+        for key in (
+            "classes",
+            "selected_features",
+            "return_ratio",
+            "test_error",
+            "seconds",
+            "return_ratio_nearest_seen",
+            "test_error_nearest_seen",
+        ):
             assert saved[method][key] == pytest.approx(summary[method][key])
         assert 0 <= saved[method]["test_error"] <= 1
     assert saved["bdd"]["classes"] < saved["tree"]["classes"]

@@ -53,6 +53,10 @@ class MazeTask:
         """(N,) cell of each true position (N, 2) on a ``grid`` x ``grid`` grid."""
         return grid_cells(states, self.env.geometry.size, grid)
 
+    def unit(self, states: np.ndarray) -> np.ndarray:
+        """(N, 2) true positions scaled to the unit square."""
+        return np.asarray(states, dtype=float).reshape(-1, 2) / self.env.geometry.size
+
     @staticmethod
     def true_state(env: gym.Env) -> np.ndarray:
         return env.unwrapped.position
@@ -78,7 +82,8 @@ class CarTask:
         self.env = env
         self.oracle = CarOracle.solve()
         self.starts = start_states(self.oracle, eval_starts)
-        self.oracle_return = self.evaluate(self.oracle.as_policy()).mean
+        self.oracle_returns = self.evaluate(self.oracle.as_policy()).returns  # (n,) per start
+        self.oracle_return = float(self.oracle_returns.mean())
 
     def evaluate(self, policy: Policy) -> EvaluationResult:
         """Discounted returns of a batched ``policy(percepts, states)`` from the starts."""
@@ -86,11 +91,13 @@ class CarTask:
 
     def cells(self, states: np.ndarray, grid: int) -> np.ndarray:
         """(N,) cell of each true (position, velocity) on a ``grid`` x ``grid`` grid."""
-        states = np.asarray(states, dtype=float).reshape(-1, 2)
-        bound = np.array([MAX_POSITION, MAX_SPEED])
-        unit = (states + bound) / (2 * bound)
-        index = np.clip((unit * grid).astype(int), 0, grid - 1)
+        index = np.clip((self.unit(states) * grid).astype(int), 0, grid - 1)
         return index[:, 1] * grid + index[:, 0]
+
+    def unit(self, states: np.ndarray) -> np.ndarray:
+        """(N, 2) true (position, velocity) scaled to the unit square."""
+        bound = np.array([MAX_POSITION, MAX_SPEED])
+        return (np.asarray(states, dtype=float).reshape(-1, 2) + bound) / (2 * bound)
 
     @staticmethod
     def true_state(env: gym.Env) -> np.ndarray:

@@ -12,13 +12,16 @@ import torch
 from vistask.features import Compound, VisualFeatureExtractor, check_image
 from vistask.rlvc.bdd import ClassBDD
 from vistask.rlvc.joint_tree import JointTree
+from vistask.rlvc.seen import SeenPercepts, classify
 from vistask.rlvc.tree import ClassTree
 from vistask.saving import load_state, save_state
 
 
 class VisualClassifier:
     """Image -> visual class: a feature extractor, the compounds learned on its vocabulary, and
-    the class structure over both (a ``ClassTree`` or a ``ClassBDD``).
+    the class structure over both (a ``ClassTree`` or a ``ClassBDD``), with the percepts the
+    classes were learned on if new percepts take the class of the nearest of them
+    (``SeenPercepts``).
 
     Example:
         >>> classifier = VisualClassifier(extractor, structure, compounds)
@@ -32,6 +35,7 @@ class VisualClassifier:
         extractor: VisualFeatureExtractor,
         structure: ClassTree | ClassBDD,
         compounds: Sequence[Compound] = (),
+        seen: SeenPercepts | None = None,
     ) -> None:
         if structure.n_features != extractor.n_features + len(compounds):
             raise ValueError(
@@ -39,7 +43,7 @@ class VisualClassifier:
                 f"{extractor.n_features} and {len(compounds)} compounds: they were not learned "
                 "together"
             )
-        self.extractor, self.structure = extractor, structure
+        self.extractor, self.structure, self.seen = extractor, structure, seen
         self.compounds = list(compounds)
 
     @property
@@ -47,7 +51,8 @@ class VisualClassifier:
         return self.structure.n_classes
 
     def classify(self, images: list[np.ndarray]) -> torch.Tensor:
-        return self.structure.classify(self.extractor.presence(images, self.compounds))
+        presence = self.extractor.presence(images, self.compounds)
+        return classify(self.structure, self.seen, presence)
 
     def __call__(self, image: np.ndarray) -> int:
         return int(self.classify([check_image(image)])[0])
@@ -59,6 +64,7 @@ class VisualClassifier:
             "compounds": [c.as_list() for c in self.compounds],
             "structure": self.structure.state_dict(),
             "kind": type(self.structure).__name__,
+            "seen": None if self.seen is None else self.seen.state_dict(),
         }
 
     @classmethod
@@ -76,7 +82,10 @@ class VisualClassifier:
             )
         compounds = [Compound.from_list(c) for c in state.get("compounds", [])]
         kinds = {"ClassTree": ClassTree, "ClassBDD": ClassBDD}
-        return cls(extractor, kinds[state["kind"]].from_state_dict(state["structure"]), compounds)
+        structure = kinds[state["kind"]].from_state_dict(state["structure"])
+        seen = state.get("seen")
+        seen = None if seen is None else SeenPercepts.from_state_dict(seen)
+        return cls(extractor, structure, compounds, seen)
 
     def save(self, path: str | Path) -> None:
         save_state(path, "VisualClassifier", self.state_dict())

@@ -7,7 +7,8 @@ repeat until no class splits or the stage cap. With ``compaction``, the classes 
 interchangeable classes merge when learning stops (section 2.5.2), and with ``compact_every``
 also every so many stages, learning going on from the merged classes; ``regrow`` then grows
 the merged classes again as one decision tree, for unseen percepts. The policy acts on Q
-solved on the current classes.
+solved on the current classes; after ``remember``, a percept's class is that of the nearest
+percepts learned on (``vistask.rlvc.seen``).
 """
 
 from __future__ import annotations
@@ -32,6 +33,7 @@ from vistask.rlvc.compaction import (
 )
 from vistask.rlvc.compound_search import find_compound_splits
 from vistask.rlvc.database import InteractionDatabase
+from vistask.rlvc.seen import SeenPercepts, classify
 from vistask.rlvc.solver import estimate_mdp, state_values, td_errors, value_iteration
 from vistask.rlvc.split import Split, find_splits
 from vistask.rlvc.tree import ClassTree
@@ -122,6 +124,8 @@ class RLVC:
     compaction_tolerance: float = 0.02
     compounds: list[Compound] = field(default_factory=list, init=False)
     structure: ClassTree | ClassBDD = field(init=False)
+    # With ``remember``, new percepts take the class of the nearest percepts learned on.
+    seen: SeenPercepts | None = field(default=None, init=False)
     history: list[StageRecord] = field(default_factory=list, init=False)
     timing: Timing = field(default_factory=Timing, init=False)
     _q: torch.Tensor | None = field(default=None, init=False, repr=False)
@@ -215,6 +219,7 @@ class RLVC:
             )
         if max_stages < 1:
             raise ValueError(f"max_stages must be >= 1, got {max_stages}")
+        self.seen = None  # the classes change
         with single_thread():
             return self._learn(db, max_stages, progress, on_stage)
 
@@ -369,7 +374,21 @@ class RLVC:
         if self.history:
             self.history[-1].classes = self.n_classes
             self.history[-1].selected_features = len(self.structure.selected_features)
+        self.seen = None
         self.timing.compaction += time.perf_counter() - start
+        return self
+
+    def remember(self, db: InteractionDatabase) -> RLVC:
+        """Keep the tested features of ``db``'s percepts, so that ``classify`` gives a percept
+        the class of the nearest of them (``SeenPercepts``) until the classes change.
+        ``RLVCAgent(nearest_seen=True)`` does this when it ends learning.
+
+        A percept's class then does not hang on every test of one path: on place navigation's
+        held-out views (30,000 interactions, seeds 0-2) the error of the greedy action fell from
+        24.3% to 22.8% with the tree, from 23.1% to 22.8% with compaction; on the mountain
+        car the return stayed as it was (0.765 and 0.763 of the oracle's, seeds 0-4).
+        """
+        self.seen = SeenPercepts.of(self.structure, db.presence)
         return self
 
     def _compound_splits(
@@ -420,9 +439,14 @@ class RLVC:
         """(S,) V = max_a Q of every class."""
         return state_values(self.q)
 
+    def classify(self, presence: torch.Tensor) -> torch.Tensor:
+        """(N, F) bool presence -> (N,) classes (by the structure, or after ``remember`` by
+        the nearest percepts learned on)."""
+        return classify(self.structure, self.seen, presence)
+
     def greedy(self, presence: torch.Tensor) -> torch.Tensor:
         """(N, F) bool presence -> (N,) greedy actions."""
-        return self.q.argmax(dim=1)[self.structure.classify(presence)]
+        return self.q.argmax(dim=1)[self.classify(presence)]
 
     def state_dict(self) -> dict:
         return {
@@ -443,6 +467,7 @@ class RLVC:
             "splits_since_compaction": self._splits_since_compaction,
             "q": self.q,
             "history": [asdict(r) for r in self.history],
+            "seen": None if self.seen is None else self.seen.state_dict(),
         }
 
     @classmethod
@@ -453,6 +478,8 @@ class RLVC:
         rlvc.compounds = [Compound.from_list(c) for c in state.get("compounds", [])]
         rlvc._q = state["q"]
         rlvc.history = [StageRecord(**r) for r in state["history"]]
+        if state.get("seen") is not None:
+            rlvc.seen = SeenPercepts.from_state_dict(state["seen"])
         return rlvc
 
     def save(self, path: str | Path) -> None:
