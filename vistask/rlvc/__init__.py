@@ -1,6 +1,6 @@
 """RLVC: reinforcement learning of visual classes (interaction database, class tree or BDD, Q
-solver, split search, compaction, learner), and RLJC: joint classes of percepts and continuous
-actions (joint tree, learner)."""
+solver, split search, compaction, learner, new percepts by the nearest learned ones), and
+RLJC: joint classes of percepts and continuous actions (joint tree, learner)."""
 
 from vistask.rlvc.bdd import ClassBDD
 from vistask.rlvc.classifier import JointClassifier, VisualClassifier
@@ -16,6 +16,7 @@ from vistask.rlvc.database import (
 from vistask.rlvc.joint_tree import JointTree
 from vistask.rlvc.learner import RLVC, StageRecord
 from vistask.rlvc.rljc import RLJC, joint_values
+from vistask.rlvc.seen import SeenPercepts
 from vistask.rlvc.solver import ClassMDP, estimate_mdp, state_values, td_errors, value_iteration
 from vistask.rlvc.split import Split, ThresholdSplit, find_splits, find_threshold_splits
 from vistask.rlvc.tree import ClassTree
@@ -29,6 +30,7 @@ __all__ = [
     "InteractionDatabase",
     "JointClassifier",
     "JointTree",
+    "SeenPercepts",
     "Split",
     "StageRecord",
     "ThresholdSplit",
