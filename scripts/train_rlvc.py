@@ -1,4 +1,4 @@
-"""Train RLVC on an image env (RLJC if its actions are continuous); on the envs with an
+r"""Train RLVC on an image env (RLJC if its actions are continuous); on the envs with an
 oracle, compare the greedy policy with the oracle's.
 
 python scripts/train_rlvc.py                       # the visual maze, 40,000 interactions
@@ -6,6 +6,8 @@ python scripts/train_rlvc.py --seed 3 --out runs/s3
 python scripts/train_rlvc.py --env-kwargs '{"layout_seed": 7}'   # another maze layout
 python scripts/train_rlvc.py --env vistask/VisualMountainCar-v0 --compounds   # paper Figs. 6-7
 python scripts/train_rlvc.py --env vistask/VisualMountainCar-v0 --compounds --compaction
+python scripts/train_rlvc.py --env vistask/VisualMountainCar-v0 --compounds --compaction \
+    --compaction-tolerance 0.01 --env-kwargs '{"max_episode_steps": 20}'   # the README's car
 python scripts/train_rlvc.py --env vistask/VisualMazeContinuous-v0   # RLJC, paper Fig. 10
 python scripts/train_rlvc.py --resume runs/s3      # go on after a stop (Ctrl-C, kill)
 """

@@ -14,6 +14,7 @@ from vistask.features import (
 )
 from vistask.features.compounds import match, presence_of_candidates
 from vistask.rlvc import RLVC, InteractionDatabase
+from vistask.rlvc.compound_search import ReductionRank
 
 
 def random_occurrences(rng, n_images=40, n_features=5, per_image=8) -> Occurrences:
@@ -156,9 +157,12 @@ def test_a_compound_splits_a_class_that_a_word_splits_too_only_where_it_does_bet
     assert len(rlvc.compounds) == (1 if word_agrees < 1 else 0)
 
 
-def brute_force_proposals(occ: Occurrences, tolerance: float, min_count: int) -> list:
+def brute_force_proposals(
+    occ: Occurrences, tolerance: float, min_count: int, images: bool = False
+) -> list:
     """(first, second, offset) of every bin seen in min_count to n_images - min_count images,
-    by decreasing image count, then by (first, second, cell)."""
+    by decreasing image count, then by (first, second, cell); with ``images``, the bin's
+    images too."""
     images, displacements = {}, {}
     for i in range(len(occ)):
         for j in range(len(occ)):
@@ -171,7 +175,10 @@ def brute_force_proposals(occ: Occurrences, tolerance: float, min_count: int) ->
             displacements.setdefault(b, []).append(d)
     bins = [b for b, ims in images.items() if min_count <= len(ims) <= occ.n_images - min_count]
     bins.sort(key=lambda b: (-len(images[b]), b))
-    return [(b[0], b[1], np.mean(displacements[b], axis=0)) for b in bins]
+    return [
+        (b[0], b[1], np.mean(displacements[b], axis=0), *([images[b]] if images else []))
+        for b in bins
+    ]
 
 
 def test_propose_counts_the_images_of_every_relation_as_brute_force_does():
@@ -183,6 +190,70 @@ def test_propose_counts_the_images_of_every_relation_as_brute_force_does():
             expected = brute_force_proposals(occ, tolerance, min_count=2)
             assert got and [(c.first, c.second) for c in got] == [e[:2] for e in expected]
             assert np.allclose([c.offset for c in got], [e[2] for e in expected], atol=1e-4)
+
+
+def test_td_ranked_proposals_order_relations_as_brute_force_does():
+    """Relations ranked by the reduction of the TD errors' squared deviations that a split of
+    the interactions of their bin's images makes, per action with min_count on both sides."""
+    rng = np.random.default_rng(4)
+    for _ in range(5):
+        occ = random_occurrences(rng, n_images=30, n_features=3, per_image=6)
+        percept = rng.integers(0, 30, 200)
+        actions, deltas = rng.integers(0, 2, 200), rng.normal(size=200)
+        rank = ReductionRank.of(percept, torch.from_numpy(actions), torch.from_numpy(deltas), 2, 4)
+        got = propose(occ, tolerances=(4.0,), min_count=2, max_candidates=10**6, rank=rank)
+
+        def sse(x):
+            return float(((x - x.mean()) ** 2).sum()) if len(x) else 0.0
+
+        expected = []
+        for first, second, offset, images in brute_force_proposals(occ, 4.0, 2, images=True):
+            inside = np.isin(percept, sorted(images))
+            score = max(
+                (
+                    sse(deltas[a]) - sse(deltas[a & inside]) - sse(deltas[a & ~inside])
+                    for a in (actions == 0, actions == 1)
+                    if (a & inside).sum() >= 4 and (a & ~inside).sum() >= 4
+                ),
+                default=-np.inf,
+            )
+            expected.append((score, first, second, offset))
+        assert rank.ranked == len(expected)
+        expected = [e for e in expected if e[0] > -np.inf]
+        assert got and len(got) == len(expected)
+        scores = []
+        for c in got:  # the brute-force bin of each proposal, then its score
+            (score,) = [
+                e[0]
+                for e in expected
+                if (e[1], e[2]) == (c.first, c.second) and np.allclose(e[3], c.offset, atol=1e-4)
+            ]
+            scores.append(score)
+        assert np.all(np.diff(scores) <= 1e-9)  # best first
+
+
+def test_td_ranking_keeps_a_rare_relation_that_the_frequency_cap_drops():
+    """Part 1 lies 5 scales right of part 0 in 20 of 200 images, whose TD errors are high;
+    parts 2 and 3 lie in one relation in 150 images, unrelated to the TD errors."""
+    rng = np.random.default_rng(0)
+    rare, common = np.arange(200) < 20, rng.random(200) < 0.75
+    xy = rng.uniform(0, 100, (200, 4, 2))
+    xy[rare, 1] = xy[rare, 0] + [10.0, 0.0]
+    xy[common, 3] = xy[common, 2] + [0.0, 10.0]
+    occ = Occurrences(
+        np.repeat(np.arange(200), 4),
+        np.tile(np.arange(4), 200),
+        xy.reshape(-1, 2),
+        np.full(800, 2.0),
+        200,
+    )
+    deltas = torch.from_numpy(np.where(rare, 1.0, 0.0) + rng.normal(0, 0.1, 200))
+    rank = ReductionRank.of(np.arange(200), torch.zeros(200, dtype=torch.long), deltas, 1, 10)
+    (by_count,) = propose(occ, min_count=10, max_candidates=1)
+    (by_td,) = propose(occ, min_count=10, max_candidates=1, rank=rank)
+    assert (by_count.first, by_count.second) in {(2, 3), (3, 2)}
+    assert (by_td.first, by_td.second) in {(0, 1), (1, 0)}
+    assert rank.ranked > 1  # the family of its Bonferroni correction: every relation ranked
 
 
 def test_propose_keeps_only_relations_that_could_split():

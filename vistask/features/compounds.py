@@ -28,7 +28,7 @@ Example:
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -230,6 +230,7 @@ def propose(
     tolerances: Sequence[float] = (1.0,),
     min_count: int = 10,
     max_candidates: int = 512,
+    rank: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None,
 ) -> list[Compound]:
     """Candidate compounds: pairs of parts that recur in a stable relation in ``occ``.
 
@@ -237,9 +238,16 @@ def propose(
     part, displacement in units of the first's scale, cut into cells of a tolerance).
     A bin seen in at least ``min_count`` images, and not in all but fewer than ``min_count``
     of them (it could not split those images), is a candidate, with the mean displacement of
-    its pairs as offset; per tolerance, the ``max_candidates`` most frequent are returned,
-    most frequent first. Wider tolerances give compounds that cover more images (a wider band
-    of needle angles on a gauge, say).
+    its pairs as offset; per tolerance, the ``max_candidates`` best ranked are returned,
+    best first: by default the most frequent. Wider tolerances give compounds that cover
+    more images (a wider band of needle angles on a gauge, say).
+
+    Args:
+        rank: scores of the bins from the images they hold, higher first, instead of their
+            image counts: ``rank(images, start)`` with ``images`` (Z,) the images of every
+            bin one bin after the other and ``start`` (B,) where each bin's begin; it is
+            called once per tolerance with the bins that could be candidates, and bins it
+            scores ``-inf`` are left out (``vistask.rlvc.compound_search.ReductionRank``).
     """
     if min(tolerances, default=0) <= 0 or min_count < 1 or max_candidates < 1:
         raise ValueError(
@@ -271,8 +279,17 @@ def propose(
         bin_of = code[code >= 0] // occ.n_images
         start = np.flatnonzero(np.diff(bin_of, prepend=-1))  # bins are >= 0
         bins, images = bin_of[start], np.diff(np.r_[start, len(bin_of)])
-        ok = (images >= min_count) & (images <= occ.n_images - min_count)
-        ranked = bins[np.flatnonzero(ok)[np.argsort(-images[ok], kind="stable")][:max_candidates]]
+        ok = np.flatnonzero((images >= min_count) & (images <= occ.n_images - min_count))
+        if rank is None:
+            score = images[ok]
+        else:
+            image_of = code[code >= 0] % occ.n_images
+            # The images of the candidate bins only, each bin's run cut out whole.
+            kept = concatenated_ranges(start[ok], images[ok])
+            score = rank(image_of[kept], np.cumsum(images[ok]) - images[ok])
+            ok = ok[score > -np.inf]
+            score = score[score > -np.inf]
+        ranked = bins[ok[np.argsort(-score, kind="stable")][:max_candidates]]
         if not len(ranked):
             continue
         # Offsets: the mean displacement of each ranked bin's pairs, summed in the pairs' order.
