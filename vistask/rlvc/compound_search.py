@@ -2,8 +2,8 @@
 
 At every stage, the most aliased classes (largest TD-error variance first) are searched with
 candidate compounds made from their own percepts: pairs of parts (coarse groups of words, or
-compounds) that recur in a stable relative position (``vistask.features.propose``), the 512
-whose percepts' TD errors they would split best first (``ReductionRank``). The candidates are
+compounds) that recur in a stable relative position (``vistask.features.propose``), the 128
+whose percepts' TD errors they would split best (``ReductionRank``). The candidates are
 scored as primitive features are (``find_splits``: variance reduction and Welch's t-test), at
 the significance level divided by the number of relations ranked (Bonferroni): thousands of
 relations are ranked for each class by the very TD errors they are tested on, and without the
@@ -114,7 +114,7 @@ def find_compound_splits(
     min_count: int = 10,
     tolerances: Sequence[float] = (1.0,),
     max_classes: int = 8,
-    max_candidates: int = 512,
+    max_candidates: int = 128,
     skip: set[int] | frozenset = frozenset(),
     to_beat: Sequence[Split] = (),
 ) -> tuple[list[tuple[Split, Compound]], list[int]]:
