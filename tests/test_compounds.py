@@ -200,7 +200,9 @@ def test_td_ranked_proposals_order_relations_as_brute_force_does():
         occ = random_occurrences(rng, n_images=30, n_features=3, per_image=6)
         percept = rng.integers(0, 30, 200)
         actions, deltas = rng.integers(0, 2, 200), rng.normal(size=200)
-        rank = ReductionRank.of(percept, torch.from_numpy(actions), torch.from_numpy(deltas), 2, 4)
+        rank = ReductionRank.of(
+            percept, 30, torch.from_numpy(actions), torch.from_numpy(deltas), 2, 4
+        )
         got = propose(occ, tolerances=(4.0,), min_count=2, max_candidates=10**6, rank=rank)
 
         def sse(x):
@@ -248,7 +250,7 @@ def test_td_ranking_keeps_a_rare_relation_that_the_frequency_cap_drops():
         200,
     )
     deltas = torch.from_numpy(np.where(rare, 1.0, 0.0) + rng.normal(0, 0.1, 200))
-    rank = ReductionRank.of(np.arange(200), torch.zeros(200, dtype=torch.long), deltas, 1, 10)
+    rank = ReductionRank.of(np.arange(200), 200, torch.zeros(200, dtype=torch.long), deltas, 1, 10)
     (by_count,) = propose(occ, min_count=10, max_candidates=1)
     (by_td,) = propose(occ, min_count=10, max_candidates=1, rank=rank)
     assert (by_count.first, by_count.second) in {(2, 3), (3, 2)}

@@ -276,14 +276,15 @@ def propose(
         # Distinct images per bin: the sorted distinct (bin, image) codes (a sort of values,
         # 4x faster than a stable argsort of the bins).
         code = np.unique(key * occ.n_images + image)
-        bin_of = code[code >= 0] // occ.n_images
+        code = code[code >= 0]  # codes of pairs in no bin are negative
+        bin_of = code // occ.n_images
         start = np.flatnonzero(np.diff(bin_of, prepend=-1))  # bins are >= 0
         bins, images = bin_of[start], np.diff(np.r_[start, len(bin_of)])
         ok = np.flatnonzero((images >= min_count) & (images <= occ.n_images - min_count))
         if rank is None:
             score = images[ok]
         else:
-            image_of = code[code >= 0] % occ.n_images
+            image_of = code % occ.n_images
             # The images of the candidate bins only, each bin's run cut out whole.
             kept = concatenated_ranges(start[ok], images[ok])
             score = rank(image_of[kept], np.cumsum(images[ok]) - images[ok])

@@ -25,7 +25,7 @@ import torch
 from vistask.features import Compound
 from vistask.features.compounds import concatenated_ranges, presence_of_candidates, propose
 from vistask.rlvc.database import InteractionDatabase
-from vistask.rlvc.split import Split, find_splits, sse
+from vistask.rlvc.split import Split, find_splits, group_moments, sse
 
 
 def aliased_classes(
@@ -39,12 +39,7 @@ def aliased_classes(
     """Classes by decreasing sum of squared TD-error deviations within their (class, action)
     groups that could split (``2 * min_count`` interactions or more); classes with none left
     out."""
-    deltas = deltas.double()
-    group = states * n_actions + actions
-    groups = n_states * n_actions
-    n = torch.bincount(group, minlength=groups).double()
-    s1 = torch.zeros(groups, dtype=torch.float64).index_add_(0, group, deltas)
-    s2 = torch.zeros(groups, dtype=torch.float64).index_add_(0, group, deltas * deltas)
+    n, s1, s2 = group_moments(states * n_actions + actions, deltas, n_states * n_actions)
     spread = torch.where(n >= 2 * min_count, sse(n, s1, s2), 0.0)
     per_class = spread.view(n_states, n_actions).sum(1)
     order = torch.argsort(per_class, descending=True, stable=True)
@@ -80,18 +75,17 @@ class ReductionRank:
     def of(
         cls,
         percept: np.ndarray,
+        n_percepts: int,
         actions: torch.Tensor,
         deltas: torch.Tensor,
         n_actions: int,
         min_count: int,
     ) -> ReductionRank:
-        """From the interactions: ``percept`` (N,) percept index, ``actions``, ``deltas`` (N,)."""
-        deltas = deltas.double()
+        """From the interactions: ``percept`` (N,) index of each one's percept (of
+        ``n_percepts``, the images ``propose`` bins), ``actions``, ``deltas`` (N,)."""
         group = torch.as_tensor(percept, dtype=torch.long) * n_actions + actions
-        n_groups = (int(percept.max(initial=-1)) + 1) * n_actions
-        stats = torch.zeros(n_groups, 3, dtype=torch.float64)
-        stats.index_add_(0, group, torch.stack([torch.ones_like(deltas), deltas, deltas**2], 1))
-        return cls(stats.view(-1, n_actions, 3), min_count)
+        moments = group_moments(group, deltas, n_percepts * n_actions)
+        return cls(torch.stack(moments, 1).view(n_percepts, n_actions, 3), min_count)
 
     def __call__(self, images: np.ndarray, start: np.ndarray) -> np.ndarray:
         self.ranked += len(start)
@@ -152,7 +146,9 @@ def find_compound_splits(
         rows = torch.nonzero(states == state).flatten()
         percepts, local = np.unique(db.obs[rows].numpy(), return_inverse=True)
         occurrences = db.occurrences.select(percepts)
-        rank = ReductionRank.of(local, db.actions[rows], deltas[rows], n_actions, min_count)
+        rank = ReductionRank.of(
+            local, len(percepts), db.actions[rows], deltas[rows], n_actions, min_count
+        )
         candidates = propose(occurrences, tolerances, min_count, max_candidates, rank)
         if not candidates:
             continue
@@ -173,7 +169,7 @@ def find_compound_splits(
             1,
             n_actions,
             len(candidates),
-            alpha / max(rank.ranked, len(candidates)),
+            alpha / rank.ranked,  # the candidates are among the relations ranked
             min_count,
         )
         if splits and splits[0].reduction > primitive.get(state, 0.0):

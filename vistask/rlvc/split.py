@@ -38,6 +38,24 @@ def sse(n: torch.Tensor, s1: torch.Tensor, s2: torch.Tensor) -> torch.Tensor:
     return (s2 - s1 * s1 / n.clamp_min(1)).clamp_min(0)
 
 
+def group_moments(
+    group: torch.Tensor, deltas: torch.Tensor, n_groups: int
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Count, sum and sum of squares (n_groups,) float64 of ``deltas`` (N,) in each ``group``
+    (N,) long, the statistics that ``sse`` and ``welch_splits`` read.
+
+    Example:
+        >>> n, s1, s2 = group_moments(torch.tensor([0, 0, 2]), torch.tensor([1.0, 3.0, 2.0]), 3)
+        >>> s2
+        tensor([10.,  0.,  4.], dtype=torch.float64)
+    """
+    deltas = deltas.double()
+    n = torch.bincount(group, minlength=n_groups).double()
+    s1 = torch.zeros(n_groups, dtype=torch.float64).index_add_(0, group, deltas)
+    s2 = torch.zeros(n_groups, dtype=torch.float64).index_add_(0, group, deltas * deltas)
+    return n, s1, s2
+
+
 def first_in_group(groups: torch.Tensor, n_groups: int) -> torch.Tensor:
     """Position in ``groups`` (K,) of the first element of each group that occurs, by group.
 
@@ -124,10 +142,7 @@ def find_splits(
     groups = n_states * n_actions
     group = states * n_actions + actions  # (N,)
 
-    # Per (class, action) totals.
-    n_g = torch.bincount(group, minlength=groups).double()
-    s1_g = torch.zeros(groups, dtype=torch.float64).index_add_(0, group, deltas)
-    s2_g = torch.zeros(groups, dtype=torch.float64).index_add_(0, group, deltas * deltas)
+    n_g, s1_g, s2_g = group_moments(group, deltas, groups)  # per (class, action)
 
     # Only (class, action) groups with room for min_count on both sides can split; compacting
     # them bounds the (group x feature) tables by the data, not by S x A x F.
