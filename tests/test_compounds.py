@@ -157,12 +157,9 @@ def test_a_compound_splits_a_class_that_a_word_splits_too_only_where_it_does_bet
     assert len(rlvc.compounds) == (1 if word_agrees < 1 else 0)
 
 
-def brute_force_proposals(
-    occ: Occurrences, tolerance: float, min_count: int, images: bool = False
-) -> list:
-    """(first, second, offset) of every bin seen in min_count to n_images - min_count images,
-    by decreasing image count, then by (first, second, cell); with ``images``, the bin's
-    images too."""
+def brute_force_proposals(occ: Occurrences, tolerance: float, min_count: int) -> list:
+    """(first, second, offset, images) of every bin seen in min_count to n_images - min_count
+    images, by decreasing image count, then by (first, second, cell)."""
     images, displacements = {}, {}
     for i in range(len(occ)):
         for j in range(len(occ)):
@@ -175,10 +172,7 @@ def brute_force_proposals(
             displacements.setdefault(b, []).append(d)
     bins = [b for b, ims in images.items() if min_count <= len(ims) <= occ.n_images - min_count]
     bins.sort(key=lambda b: (-len(images[b]), b))
-    return [
-        (b[0], b[1], np.mean(displacements[b], axis=0), *([images[b]] if images else []))
-        for b in bins
-    ]
+    return [(b[0], b[1], np.mean(displacements[b], axis=0), images[b]) for b in bins]
 
 
 def test_propose_counts_the_images_of_every_relation_as_brute_force_does():
@@ -209,7 +203,7 @@ def test_td_ranked_proposals_order_relations_as_brute_force_does():
             return float(((x - x.mean()) ** 2).sum()) if len(x) else 0.0
 
         expected = []
-        for first, second, offset, images in brute_force_proposals(occ, 4.0, 2, images=True):
+        for first, second, offset, images in brute_force_proposals(occ, 4.0, 2):
             inside = np.isin(percept, sorted(images))
             score = max(
                 (

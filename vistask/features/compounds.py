@@ -288,8 +288,8 @@ def propose(
             # The images of the candidate bins only, each bin's run cut out whole.
             kept = concatenated_ranges(start[ok], images[ok])
             score = rank(image_of[kept], np.cumsum(images[ok]) - images[ok])
-            ok = ok[score > -np.inf]
-            score = score[score > -np.inf]
+            finite = score > -np.inf
+            ok, score = ok[finite], score[finite]
         ranked = bins[ok[np.argsort(-score, kind="stable")][:max_candidates]]
         if not len(ranked):
             continue
