@@ -7,7 +7,8 @@ python scripts/train_rlvc.py --env-kwargs '{"layout_seed": 7}'   # another maze 
 python scripts/train_rlvc.py --env vistask/VisualMountainCar-v0 --compounds   # paper Figs. 6-7
 python scripts/train_rlvc.py --env vistask/VisualMountainCar-v0 --compounds --compaction
 python scripts/train_rlvc.py --env vistask/VisualMountainCar-v0 --compounds --compaction \
-    --compaction-tolerance 0.01 --env-kwargs '{"max_episode_steps": 20}'   # the README's car
+    --compaction-tolerance 0.01 --structures 7 --env-kwargs '{"max_episode_steps": 20}'
+                                                   # the README's car
 python scripts/train_rlvc.py --env vistask/VisualMazeContinuous-v0   # RLJC, paper Fig. 10
 python scripts/train_rlvc.py --resume runs/s3      # go on after a stop (Ctrl-C, kill)
 """
@@ -52,6 +53,13 @@ def main() -> None:
         "their range (default 0.02; 0.01 does better on the car)",
     )
     parser.add_argument(
+        "--structures",
+        type=positive_int,
+        default=1,
+        help="with --compaction: when learning ends, fuse this many class structures, the "
+        "learned one and others on bootstrap samples of its interactions (RLVC.fuse)",
+    )
+    parser.add_argument(
         "--resume",
         type=Path,
         default=None,
@@ -61,6 +69,8 @@ def main() -> None:
     args = parser.parse_args()
     if args.compaction_tolerance is not None and not args.compaction:
         parser.error("--compaction-tolerance needs --compaction")
+    if args.structures > 1 and not args.compaction:
+        parser.error("--structures needs --compaction")
     run = dict(env_id=args.env, env_kwargs=args.env_kwargs, seed=args.seed, out=args.out)
     run["progress"] = not args.no_progress
     if args.interactions is not None:
@@ -70,6 +80,7 @@ def main() -> None:
         args.compounds = saved.pop("compounds", False)
         args.compaction = saved.pop("compaction", False)
         args.compaction_tolerance = saved.pop("compaction_tolerance", None)
+        args.structures = saved.pop("structures", 1)
         run = {**saved, "out": args.resume, "progress": run["progress"]}
         args.env, args.env_kwargs = saved["env_id"], saved["env_kwargs"]
     interrupt_on_sigterm()
@@ -85,6 +96,7 @@ def main() -> None:
             compounds=args.compounds,
             compaction=args.compaction,
             compaction_tolerance=args.compaction_tolerance,
+            structures=args.structures,
         )
 
 

@@ -176,6 +176,8 @@ def test_unlearned_agent_explains_itself():
         RLVCAgent(small_maze(), databases=0)
     with pytest.raises(ValueError, match=r"epsilon must be in \[0, 1\], got 2.0"):
         RLVCAgent(small_maze(), epsilon=2.0)
+    with pytest.raises(ValueError, match="structures must be >= 1, got 0"):
+        RLVCAgent(small_maze(), compaction=True, structures=0)
     with pytest.raises(ValueError, match="total_timesteps must be an integer >= databases"):
         agent.learn(2)
 
@@ -320,6 +322,21 @@ def test_train_rlvc_passes_the_compaction_tolerance_and_keeps_it_for_resuming(tm
     assert agent.compaction and agent.compaction_tolerance == 0.01
     with pytest.raises(ValueError, match=r"other settings \(compaction_tolerance\)"):
         train_rlvc(**run, compaction=True, compaction_tolerance=0.05)
+
+
+def test_train_rlvc_fuses_class_structures_and_the_saved_agent_acts_on_them(tmp_path):
+    run = dict(env_kwargs=SMALL, interactions=2000, out=tmp_path, progress=False, pictures=False)
+    summary = train_rlvc(**run, compaction=True, structures=3)
+    assert summary["structures"] == 3
+    env = gym.make("vistask/VisualMaze-v0", **SMALL)
+    agent = RLVCAgent.load(tmp_path / "rlvc_agent.pt", env)
+    assert agent.structures == 3 and agent.rlvc.n_classes == summary["classes"]
+    starts = start_positions(env.unwrapped.geometry, 100)
+    assert evaluate_policy(env, agent_policy(agent), starts).mean == pytest.approx(
+        summary["rlvc_return"]
+    )
+    with pytest.raises(ValueError, match="compaction=True"):
+        RLVCAgent(env, structures=3)
 
 
 def test_a_classifier_with_compounds_round_trips_and_tests_them(small_agent, tmp_path):

@@ -440,3 +440,45 @@ def test_regrow_keeps_every_percept_in_its_class_and_q_solved_on_them():
     assert rlvc.history[-1].classes == rlvc.n_classes
     with pytest.raises(ValueError, match="compaction=True"):
         RLVC(db.n_features, 2, gamma=0.9).learn(db, progress=False).regrow(db)
+
+
+def test_fuse_gives_each_class_the_mean_q_of_its_percepts_over_the_structures():
+    # Rewards that three features set through noise: bootstrap samples split them differently.
+    rng = np.random.default_rng(5)
+    n = 1500
+    presence = torch.from_numpy(rng.random((2 * n, 12)) < 0.5)
+    actions = torch.from_numpy(rng.integers(0, 2, n))
+    x = presence[:n].double()
+    rewards = (2 * actions - 1) * (x[:, 0] + 0.5 * x[:, 1] - x[:, 2]) + torch.from_numpy(
+        rng.normal(size=n)
+    )
+    terminal = torch.from_numpy(rng.random(n) < 0.2)
+    db = InteractionDatabase(
+        presence, torch.arange(n), actions, rewards, n + torch.arange(n), terminal
+    )
+    rlvc = RLVC(db.n_features, 2, gamma=0.9, compaction=True, compaction_tolerance=0.01)
+    rlvc.learn(db, progress=False)
+    # The structures that fuse learns, made again by brute force: the same bootstrap samples.
+    generator = torch.Generator().manual_seed(7)
+    structures = [(rlvc.structure.classify(db.presence), rlvc.q.clone())]
+    for _ in range(2):
+        sample = torch.randint(len(db), (len(db),), generator=generator)
+        other = RLVC(db.n_features, 2, gamma=0.9, compaction=True, compaction_tolerance=0.01)
+        other.learn(db.take(sample), progress=False)
+        structures.append((other.structure.classify(db.presence), other.q))
+    mean_q = [
+        sum(q[int(classes[i])] for classes, q in structures) / 3 for i in range(len(db.presence))
+    ]
+    cells = [tuple(int(classes[i]) for classes, _ in structures) for i in range(len(db.presence))]
+    assert len(set(cells)) > len(set(cells[i][0] for i in range(len(cells))))  # they differ
+
+    rlvc.fuse(db, 3, seed=7)
+    fused = rlvc.structure.classify(db.presence)
+    assert rlvc.history[-1].classes == rlvc.n_classes == len(set(fused.tolist()))
+    for cell in set(cells):  # a cell stays in one class
+        assert len({int(fused[i]) for i in range(len(cells)) if cells[i] == cell}) == 1
+    for c in range(rlvc.n_classes):
+        members = [mean_q[i] for i in range(len(cells)) if fused[i] == c]
+        torch.testing.assert_close(rlvc.q[c], sum(members) / len(members))
+    with pytest.raises(ValueError, match="compaction=True"):
+        RLVC(db.n_features, 2, gamma=0.9).learn(db, progress=False).fuse(db, 3)

@@ -266,6 +266,7 @@ def train_rlvc(
     compounds: bool = False,
     compaction: bool = False,
     compaction_tolerance: float | None = None,
+    structures: int = 1,
     eval_starts: int = EVAL_STARTS,
 ) -> dict:
     """Learn visual classes with ``RLVCAgent``'s defaults, score the greedy policy, save the
@@ -283,6 +284,7 @@ def train_rlvc(
         compounds: let the agent make compound features (``RLVCAgent``'s ``compounds``).
         compaction: hold the agent's classes in a BDD and merge them (``compaction``).
         compaction_tolerance: the agent's ``compaction_tolerance`` (None: its default).
+        structures: class structures the agent fuses when learning ends (``structures``).
         eval_starts: starts the greedy policy is scored from on the maze and the car (seeded
             episodes on an env without an oracle); fewer score faster and noisier.
 
@@ -298,6 +300,8 @@ def train_rlvc(
     options = {"compounds": compounds, "compaction": compaction}
     if compaction_tolerance is not None:
         options["compaction_tolerance"] = compaction_tolerance
+    if structures != 1:  # runs saved without the option resume as before
+        options["structures"] = structures
     check_same_settings(out / "settings.json", {**settings, "seed": seed, **options})
     env = gym.make(env_id, **(env_kwargs or {}))
     scorer = Scorer(env_id, env_kwargs, eval_starts)
@@ -319,6 +323,7 @@ def train_rlvc(
         "compound_features": len(rlvc.compound_features),
         "compounds_made": len(rlvc.compounds),
         "compaction_tolerance": agent.compaction_tolerance if compaction else None,
+        "structures": agent.structures,
         "vocabulary_size": agent.extractor.n_features,
         "interactions": agent.num_timesteps,
         "eval_starts": eval_starts,

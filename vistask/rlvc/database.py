@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import copy
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import gymnasium as gym
 import numpy as np
@@ -300,6 +300,11 @@ class InteractionDatabase:
             if has_occurrences
             else None,
         )
+
+    def take(self, index: torch.Tensor) -> InteractionDatabase:
+        """The interactions ``index`` (N',) long, repeats allowed, over the same percepts."""
+        columns = ("obs", "actions", "rewards", "next_obs", "terminal")
+        return replace(self, **{k: getattr(self, k)[index] for k in columns}, _coo=None)
 
     def state_dict(self) -> dict:
         """Plain tensors for a checkpoint; presence as its (2, nnz) nonzero indices (a percept
