@@ -475,6 +475,7 @@ def test_fuse_gives_each_class_the_mean_q_of_its_percepts_over_the_structures():
     rlvc.fuse(db, 3, seed=7)
     fused = rlvc.structure.classify(db.presence)
     assert rlvc.history[-1].classes == rlvc.n_classes == len(set(fused.tolist()))
+    assert rlvc.n_classes < len(set(cells))  # interchangeable cells merged
     for cell in set(cells):  # a cell stays in one class
         assert len({int(fused[i]) for i in range(len(cells)) if cells[i] == cell}) == 1
     for c in range(rlvc.n_classes):
