@@ -18,7 +18,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import torch
@@ -327,8 +327,7 @@ class RLVC:
         """Merge interchangeable classes; returns the percepts' merged classes, their Q and
         the number of classes merged away."""
         start, before = time.perf_counter(), self.n_classes
-        values = state_values(q)
-        tolerance = self.compaction_tolerance * float(values.max() - values.min())
+        tolerance = self._merge_tolerance(q)
         groups = merge_groups(q, tolerance)
         self.structure.merge(groups)
         classes = groups[classes]
@@ -346,6 +345,11 @@ class RLVC:
         q = self.solve(db, classes)
         self.timing.compaction += time.perf_counter() - start
         return classes, q, before - self.n_classes
+
+    def _merge_tolerance(self, q: torch.Tensor) -> float:
+        """``compaction_tolerance`` as a value: its share of the range of the values of ``q``."""
+        values = state_values(q)
+        return self.compaction_tolerance * float(values.max() - values.min())
 
     def regrow(self, db: InteractionDatabase) -> RLVC:
         """Grow the classes again as one decision tree over the features they test, every
@@ -367,19 +371,18 @@ class RLVC:
         splits, groups = induced_splits(db.presence, classes, self.structure.selected_features)
         # Classes that outgrew the BDD's memory budget regrow outside it: the tree has more
         # leaves than they had classes.
-        structure = ClassBDD.from_splits(
+        self.structure = ClassBDD.from_splits(
             self.n_features, splits, groups, in_bdd=self.structure.in_bdd
         )
-        self.structure = structure  # ``solve`` counts its classes
         with single_thread():
-            q = self.solve(db, classes)
-        self._take_classes(structure, q)
+            self._took_new_classes(self.solve(db, classes))
         self.timing.compaction += time.perf_counter() - start
         return self
 
-    def _take_classes(self, structure: ClassBDD, q: torch.Tensor) -> None:
-        """Hold the classes of ``structure`` and their Q (S, A) in place of those learned."""
-        self.structure, self._q, self._pending = structure, q, None
+    def _took_new_classes(self, q: torch.Tensor) -> None:
+        """``structure`` was replaced: hold ``q`` (S, A) as its classes' Q, and forget what
+        was kept of the classes before."""
+        self._q, self._pending = q, None
         self._no_compound.clear()
         if self.history:
             self.history[-1].classes = self.n_classes
@@ -416,15 +419,7 @@ class RLVC:
         learners = [self]
         for _ in range(structures - 1):
             sample = torch.randint(len(db), (len(db),), generator=generator)
-            other = RLVC(
-                self.n_features,
-                self.n_actions,
-                self.gamma,
-                self.alpha,
-                self.min_count,
-                compaction=True,
-                compaction_tolerance=self.compaction_tolerance,
-            )
+            other = replace(self, use_compounds=False, compact_every=None)  # fresh classes
             learners.append(other.learn(db.take(sample), progress=False))
         with single_thread():
             # (M, A) mean Q of each percept's classes, (M,) its cell.
@@ -433,21 +428,16 @@ class RLVC:
             cells, cell = torch.unique(classes, dim=0, return_inverse=True)
             cell_q = torch.zeros(len(cells), self.n_actions, dtype=torch.float64)
             cell_q[cell] = mean_q
-            values = state_values(cell_q)
-            groups = merge_groups(
-                cell_q, self.compaction_tolerance * float(values.max() - values.min())
-            )
-            merged = groups[cell]
+            merged = merge_groups(cell_q, self._merge_tolerance(cell_q))[cell]
             tested = sorted(set().union(*(rlvc.structure.selected_features for rlvc in learners)))
             splits, leaf_groups = induced_splits(db.presence, merged, tested)
-            structure = ClassBDD.from_splits(
+            self.structure = ClassBDD.from_splits(
                 self.n_features, splits, leaf_groups, in_bdd=self.structure.in_bdd
             )
             # Each class's Q: the mean Q of its percepts.
-            n = torch.bincount(merged, minlength=structure.n_classes).clamp_min(1)
-            q = torch.zeros(structure.n_classes, self.n_actions, dtype=torch.float64)
-            q.index_add_(0, merged, mean_q)
-        self._take_classes(structure, q / n[:, None])
+            n = torch.bincount(merged, minlength=self.n_classes).clamp_min(1)
+            q = torch.zeros(self.n_classes, self.n_actions, dtype=torch.float64)
+            self._took_new_classes(q.index_add_(0, merged, mean_q) / n[:, None])
         self.timing.compaction += time.perf_counter() - start
         return self
 
