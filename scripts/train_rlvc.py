@@ -7,7 +7,7 @@ python scripts/train_rlvc.py --env-kwargs '{"layout_seed": 7}'   # another maze 
 python scripts/train_rlvc.py --env vistask/VisualMountainCar-v0 --compounds   # paper Figs. 6-7
 python scripts/train_rlvc.py --env vistask/VisualMountainCar-v0 --compounds --compaction
 python scripts/train_rlvc.py --env vistask/VisualMountainCar-v0 --compounds --compaction \
-    --compaction-tolerance 0.01 --structures 7 --env-kwargs '{"max_episode_steps": 20}'
+    --compaction-tolerance 0.01 --structures 11 --env-kwargs '{"max_episode_steps": 20}'
                                                    # the README's car
 python scripts/train_rlvc.py --env vistask/VisualMazeContinuous-v0   # RLJC, paper Fig. 10
 python scripts/train_rlvc.py --resume runs/s3      # go on after a stop (Ctrl-C, kill)

@@ -442,7 +442,8 @@ def test_regrow_keeps_every_percept_in_its_class_and_q_solved_on_them():
         RLVC(db.n_features, 2, gamma=0.9).learn(db, progress=False).regrow(db)
 
 
-def test_fuse_gives_each_class_the_mean_q_of_its_percepts_over_the_structures():
+@pytest.mark.parametrize("workers", [1, 2])
+def test_fuse_gives_each_class_the_mean_q_of_its_percepts_over_the_structures(workers):
     # Rewards that three features set through noise: bootstrap samples split them differently.
     rng = np.random.default_rng(5)
     n = 1500
@@ -472,7 +473,7 @@ def test_fuse_gives_each_class_the_mean_q_of_its_percepts_over_the_structures():
     cells = [tuple(int(classes[i]) for classes, _ in structures) for i in range(len(db.presence))]
     assert len(set(cells)) > len(set(cells[i][0] for i in range(len(cells))))  # they differ
 
-    rlvc.fuse(db, 3, seed=7)
+    rlvc.fuse(db, 3, seed=7, workers=workers)
     fused = rlvc.structure.classify(db.presence)
     assert rlvc.history[-1].classes == rlvc.n_classes == len(set(fused.tolist()))
     assert rlvc.n_classes < len(set(cells))  # interchangeable cells merged
