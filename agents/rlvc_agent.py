@@ -10,6 +10,7 @@ import torch
 
 from vistask.agents.visual_agent import VisualAgent
 from vistask.checks import check_at_least, check_integers
+from vistask.parallel import check_not_importing_main
 from vistask.rlvc import RLVC, VisualClassifier
 
 
@@ -156,6 +157,8 @@ class RLVCAgent(VisualAgent):
                 f"structures={structures} fuses class structures by compaction: pass "
                 "compaction=True, or structures=1"
             )
+        if structures > 1:  # at once, not when learning ends and the structures start
+            check_not_importing_main(f"RLVCAgent(structures={structures})")
         self.structures = int(structures)
         self.nearest_seen = bool(nearest_seen)
 

@@ -1,6 +1,7 @@
 """Wrappers and agents: Gymnasium compliance, end-to-end RLVC on a small maze, persistence."""
 
 import json
+import multiprocessing
 
 import gymnasium as gym
 import numpy as np
@@ -180,6 +181,14 @@ def test_unlearned_agent_explains_itself():
         RLVCAgent(small_maze(), compaction=True, structures=0)
     with pytest.raises(ValueError, match="total_timesteps must be an integer >= databases"):
         agent.learn(2)
+
+
+def test_fused_structures_refuse_a_worker_process_that_imports_an_unguarded_script(monkeypatch):
+    # As multiprocessing marks a new process while it imports its parent's main script.
+    monkeypatch.setattr(multiprocessing.current_process(), "_inheriting", True, raising=False)
+    with pytest.raises(RuntimeError, match='under `if __name__ == "__main__":`'):
+        RLVCAgent(small_maze(), compaction=True, structures=3)
+    RLVCAgent(small_maze(), compaction=True)  # one structure starts no process
 
 
 def test_tabular_q_learning_solves_a_deterministic_gridworld(tmp_path):

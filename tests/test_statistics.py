@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import json
+import subprocess
+import sys
 import time
 
 import numpy as np
@@ -96,3 +98,18 @@ def test_an_interrupted_map_stops_the_runs_of_its_worker_processes():
         # and is interrupted as it ends.
         map_runs(time.sleep, [120, 10], workers=2, on_outcome=interrupt)
     assert time.perf_counter() - start < 60
+
+
+def test_a_script_without_a_main_guard_stops_in_its_worker_with_what_to_do(tmp_path):
+    script = tmp_path / "unguarded.py"
+    script.write_text(
+        "from vistask.parallel import map_runs\n"
+        "print(sorted(o.ok for o in map_runs(abs, [1, -2, 3], workers=2)))\n"
+    )
+    done = subprocess.run(
+        [sys.executable, str(script)], capture_output=True, text=True, timeout=300
+    )
+    # The worker process stops as it imports the script again, instead of running it whole;
+    # its run fails and this process runs the others.
+    assert "imports the main script again" in done.stderr
+    assert done.stdout.strip().splitlines()[-1] == "[False, True, True]"

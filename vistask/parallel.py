@@ -9,7 +9,9 @@ others: its outcome carries the error text instead of a result. Where the runs g
 - no cluster (the default): ``workers`` side by side on this machine (default: one per core),
   this process and ``workers - 1`` processes forked from a server process that has imported
   ``fn``'s module once. This process starts at once and the others in seconds, where a local
-  Ray took 5 s to start its workers and import the modules in them;
+  Ray took 5 s to start its workers and import the modules in them. Each worker process
+  imports the main script, so a script keeps its work under ``if __name__ == "__main__":``
+  (a worker that would run it again stops with that advice);
 - ``address`` (or the ``RAY_ADDRESS`` environment variable): Ray tasks on the running cluster
   there, whose nodes must have vistask installed; ``address="local"`` starts a Ray on this
   machine with ``workers`` CPUs instead, and shuts it down at the end.
@@ -56,6 +58,24 @@ def cluster_address(address: str | None = None) -> str | None:
     """``address`` if given, else ``RAY_ADDRESS`` from the environment (None: no cluster;
     ``"local"``: a Ray started on this machine)."""
     return address or os.environ.get("RAY_ADDRESS") or None
+
+
+def check_not_importing_main(user: str) -> None:
+    """Raise where this process is a worker process still importing the main script of the
+    process that started it: a script that starts worker processes runs again, whole, in each
+    of them unless its work is under ``if __name__ == "__main__":``.
+
+    Args:
+        user: what would start the processes, for the message.
+    """
+    # multiprocessing sets _inheriting while a new process takes in its parent's main module;
+    # its own check raises only when a process starts, inside the pool's thread, after the
+    # script has run as far as it goes.
+    if getattr(multiprocessing.current_process(), "_inheriting", False):
+        raise RuntimeError(
+            f"{user} starts worker processes, and each imports the main script again: put "
+            'the script\'s work under `if __name__ == "__main__":`'
+        )
 
 
 def one_thread() -> None:
@@ -182,6 +202,7 @@ def _map_processes(fn, items: list, workers: int, done: Callable[[Outcome], None
     # in the list when it ends its last.
     # forkserver, not fork: a process forked from one whose torch or OpenCV thread pools ran
     # hangs at its first parallel call.
+    check_not_importing_main("map_runs")
     context = multiprocessing.get_context("forkserver")
     context.set_forkserver_preload([*PRELOAD, fn.__module__])
     pool = ProcessPoolExecutor(workers - 1, mp_context=context, initializer=one_thread)
