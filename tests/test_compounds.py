@@ -1,5 +1,7 @@
 """Compound features: presence against brute force, a split only a compound can make, saving."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 import torch
@@ -14,7 +16,7 @@ from vistask.features import (
 )
 from vistask.features.compounds import match, presence_of_candidates
 from vistask.rlvc import RLVC, InteractionDatabase
-from vistask.rlvc.compound_search import ReductionRank
+from vistask.rlvc.compound_search import ReductionRank, find_compound_splits
 
 
 def random_occurrences(rng, n_images=40, n_features=5, per_image=8) -> Occurrences:
@@ -259,6 +261,49 @@ def test_propose_keeps_only_relations_that_could_split():
     assert any({c.first, c.second} == {0, 1} for c in candidates)
     with pytest.raises(ValueError, match="tolerances"):
         propose(db.occurrences, tolerances=(0.0,))
+
+
+def test_added_compounds_extend_the_interaction_pairs_as_a_fresh_database_finds_them():
+    """The split search sums each feature's pairs in their order: the cached pairs, extended
+    by the compounds' pairs, hold every feature's pairs in the order that a database built
+    with the compounds already in it has them."""
+    db = relation_database(n=200, word_agrees=0.8)
+    db = db.take(torch.from_numpy(np.random.default_rng(1).integers(0, 200, 300)))
+    db.interaction_features()  # cached before the compounds come
+    compounds = [Compound(0, 1, (5.0, 0.0), 1.0), Compound(2, 7, (0.0, 3.0), 40.0)]
+    db.add_compounds(compounds[:1])
+    db.add_compounds(compounds[1:])  # a compound of a compound
+    rows, features = db.interaction_features()
+    fresh_rows, fresh_features = replace(db, _coo=None).interaction_features()
+    assert set(features[features >= 7].tolist()) == {7, 8}
+    for f in range(db.n_features):
+        assert torch.equal(rows[features == f], fresh_rows[fresh_features == f]), f
+
+
+def test_databases_sharing_presence_add_compounds_without_touching_each_other():
+    """Compound columns go into spare columns after the presence: a database that shares
+    them with another must not write over the other's."""
+    db = relation_database(n=200)
+    a, b, c = (
+        Compound(0, 1, (5.0, 0.0), 1.0),
+        Compound(2, 3, (0.0, 0.0), 60.0),
+        Compound(4, 4, (0.0, 0.0), 1.0),
+    )
+    db.add_compounds([a])
+    other = db.take(torch.arange(100))  # shares db's presence and its spare columns
+    db.add_compounds([b])
+    other.add_compounds([c])
+    for database in (db, other):
+        assert torch.equal(database.presence, database.occurrences.presence(8))
+    assert not torch.equal(db.presence[:, 7], other.presence[:, 7])
+
+
+def test_classes_searched_side_by_side_find_what_one_thread_finds():
+    db = relation_database(n=800, word_agrees=0.5)
+    states = db.presence[db.obs, 6].long() + 2 * (db.obs % 2)  # four aliased classes
+    deltas = db.rewards - db.rewards.mean()
+    found = [find_compound_splits(db, states, deltas, 4, 1, threads=threads) for threads in (1, 2)]
+    assert len(found[0][0]) == 4 and found[0] == found[1]
 
 
 def test_rlvc_with_compounds_round_trips(tmp_path):

@@ -17,6 +17,7 @@ not put off until words have cut the class into pieces too small to show it.
 from __future__ import annotations
 
 from collections.abc import Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -92,7 +93,11 @@ class ReductionRank:
         if not len(start):
             return np.zeros(0)
         total = self.stats.sum(0)  # (A, 3)
-        inside = torch.from_numpy(np.add.reduceat(self.stats.numpy()[images], start, axis=0))
+        # Column by column: a bin's images are a few of the class's percepts, and gathering
+        # single columns of them is twice as fast as gathering (A, 3) rows.
+        columns = self.stats.view(len(self.stats), -1).T.contiguous().numpy()
+        inside = np.stack([np.add.reduceat(c[images], start) for c in columns], 1)
+        inside = torch.from_numpy(inside).view(len(start), *total.shape)
         outside = total - inside  # (B, A, 3)
         reduction = sse(*total.unbind(1)) - sse(*inside.unbind(2)) - sse(*outside.unbind(2))
         testable = (inside[..., 0] >= self.min_count) & (outside[..., 0] >= self.min_count)
@@ -112,6 +117,7 @@ def find_compound_splits(
     max_candidates: int = 128,
     skip: set[int] | frozenset = frozenset(),
     to_beat: Sequence[Split] = (),
+    threads: int = 1,
 ) -> tuple[list[tuple[Split, Compound]], list[int]]:
     """The best significant compound split of each of the ``max_classes`` most aliased classes
     that are not in ``skip`` (classes that the learner searched in vain since they last
@@ -131,6 +137,8 @@ def find_compound_splits(
             bins' percepts split the TD errors best (``ReductionRank``).
         to_beat: primitive splits of some classes (``find_splits``), the reductions that
             their compound splits must exceed.
+        threads: classes searched side by side (numpy lets go of the GIL in the search's
+            large array operations: 1.4-1.7 times faster in two threads).
 
     Returns:
         (split, compound) pairs (``split.feature`` is -1 until the compound gets a feature
@@ -138,11 +146,11 @@ def find_compound_splits(
     """
     if db.occurrences is None:
         raise ValueError("compound splits need a database that keeps feature occurrences")
-    found = []
     primitive = {split.state: split.reduction for split in to_beat}
     ranked = aliased_classes(states, db.actions, deltas, n_states, n_actions, min_count)
     searched = [state for state in ranked.tolist() if state not in skip][:max_classes]
-    for state in searched:
+
+    def search(state: int) -> tuple[Split, Compound] | None:
         rows = torch.nonzero(states == state).flatten()
         percepts, local = np.unique(db.obs[rows].numpy(), return_inverse=True)
         occurrences = db.occurrences.select(percepts)
@@ -151,7 +159,7 @@ def find_compound_splits(
         )
         candidates = propose(occurrences, tolerances, min_count, max_candidates, rank)
         if not candidates:
-            continue
+            return None
         # (interaction, candidate) presence pairs in the order of a nonzero of the (rows, K)
         # matrix, made from the smaller (percepts, K) one: each percept's candidates repeated
         # for each of its interactions.
@@ -172,8 +180,14 @@ def find_compound_splits(
             alpha / rank.ranked,  # the candidates are among the relations ranked
             min_count,
         )
-        if splits and splits[0].reduction > primitive.get(state, 0.0):
-            top = splits[0]
-            split = Split(state, -1, top.action, top.reduction, top.p_value)
-            found.append((split, candidates[top.feature]))
-    return found, searched
+        if not splits or splits[0].reduction <= primitive.get(state, 0.0):
+            return None
+        top = splits[0]
+        return Split(state, -1, top.action, top.reduction, top.p_value), candidates[top.feature]
+
+    if threads > 1 and len(searched) > 1:
+        with ThreadPoolExecutor(min(threads, len(searched))) as pool:
+            outcomes = list(pool.map(search, searched))
+    else:
+        outcomes = [search(state) for state in searched]
+    return [found for found in outcomes if found is not None], searched

