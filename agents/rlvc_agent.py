@@ -87,7 +87,7 @@ class RLVCAgent(VisualAgent):
             costs the others' learning, without compound search, spread over the cores by
             ``vistask.parallel`` (so a script that makes the agent runs it under ``if
             __name__ == "__main__":``): 11 on the mountain car return 0.911 of the oracle's
-            return instead of 0.871 (seeds 0-4) in 1.34 times the run's time.
+            return instead of 0.871 (seeds 0-4) in 1.15 times the run's time.
         nearest_seen: when ``learn`` ends, keep the tested features of the percepts learned
             on, and give each percept met later the class that most of the learned percepts
             nearest to it (fewest tested features different) are in (``RLVC.remember``), so
