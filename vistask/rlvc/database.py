@@ -25,6 +25,7 @@ from vistask.features import (
     add_compound_occurrences,
     check_image_space,
 )
+from vistask.features.compounds import concatenated_ranges
 
 # An exploration policy maps a batch of observations (B, H, W, 3) and a generator to (B,)
 # action ids, or (B, m) continuous actions: batches let a policy over visual classes extract
@@ -427,7 +428,4 @@ def interaction_pairs(
     # For each interaction, the slice of its percept's nonzeros in the percept COO.
     sizes = counts[obs]
     rows = torch.repeat_interleave(torch.arange(len(obs)), sizes)
-    offsets = torch.arange(int(sizes.sum())) - torch.repeat_interleave(
-        torch.cumsum(sizes, 0) - sizes, sizes
-    )
-    return rows, feature[starts[obs][rows] + offsets]
+    return rows, feature[torch.from_numpy(concatenated_ranges(starts[obs].numpy(), sizes.numpy()))]
