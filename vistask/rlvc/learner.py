@@ -271,8 +271,8 @@ class RLVC:
                 new_class = self.structure.split(split.state, split.feature)
                 self._splits_since_compaction += 1
                 # Incremental reclassification: only percepts of the split class can move,
-                # and reading their presence only is 2-3 times faster than a whole column (the
-                # car's 44,000 percepts).
+                # and reading their presence only is 2.1-3.4 times faster than a whole column
+                # (the car's 44,000 percepts, 150 classes).
                 members = torch.nonzero(classes == split.state).flatten()
                 classes[members[db.presence[members, split.feature]]] = new_class
             if splits:  # the acting Q is solved again when first needed
