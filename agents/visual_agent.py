@@ -21,6 +21,7 @@ from vistask.saving import load_state, save_state
 
 MAX_BLOCKED = 2  # an epsilon-greedy episode ends after this many blocked moves in a row
 VOCABULARY_SAMPLE = 20_000  # descriptors that k-means fits the vocabulary on
+VOCABULARY_GROUPS = 64  # coarse groups of the vocabulary tree (RLVCAgent's vocabulary_groups)
 
 
 def space_state(space: gym.spaces.Discrete | gym.spaces.Box) -> dict:
@@ -93,6 +94,7 @@ class VisualAgent(SB3Model):
         self.contrast_threshold = float(contrast_threshold)
         self.gamma, self.seed = float(gamma), int(seed)
         self.tensorboard_log = tensorboard_log
+        self.vocabulary_groups = VOCABULARY_GROUPS
         self.env: gym.Env | None = None
         self.observation_space: gym.spaces.Box | None = None
         self.action_space: gym.spaces.Discrete | gym.spaces.Box | None = None
@@ -246,6 +248,7 @@ class VisualAgent(SB3Model):
                 keypoints=keypoints,
                 max_descriptors=VOCABULARY_SAMPLE,
                 iters=10,
+                groups=self.vocabulary_groups,
                 seed=self.seed,
             )
             self.learner = self._new_learner()

@@ -7,8 +7,8 @@ python scripts/train_rlvc.py --env-kwargs '{"layout_seed": 7}'   # another maze 
 python scripts/train_rlvc.py --env vistask/VisualMountainCar-v0 --compounds   # paper Figs. 6-7
 python scripts/train_rlvc.py --env vistask/VisualMountainCar-v0 --compounds --compaction
 python scripts/train_rlvc.py --env vistask/VisualMountainCar-v0 --compounds --compaction \
-    --compaction-tolerance 0.01 --structures 11 --env-kwargs '{"max_episode_steps": 20}'
-                                                   # the README's car
+    --compaction-tolerance 0.01 --structures 11 --vocabulary-groups 16 \
+    --env-kwargs '{"max_episode_steps": 20}'       # the README's car
 python scripts/train_rlvc.py --env vistask/VisualMazeContinuous-v0   # RLJC, paper Fig. 10
 python scripts/train_rlvc.py --resume runs/s3      # go on after a stop (Ctrl-C, kill)
 """
@@ -20,6 +20,7 @@ from pathlib import Path
 import gymnasium as gym
 
 import vistask.envs  # noqa: F401  (registers the environments)
+from vistask.agents.visual_agent import VOCABULARY_GROUPS
 from vistask.cli import interrupt_on_sigterm, positive_int, stopped_run_settings, unit_fraction
 from vistask.experiments.train_rljc import train_rljc
 from vistask.experiments.train_rlvc import train_rlvc
@@ -60,6 +61,13 @@ def main() -> None:
         "learned one and others on bootstrap samples of its interactions (RLVC.fuse)",
     )
     parser.add_argument(
+        "--vocabulary-groups",
+        type=positive_int,
+        default=None,
+        help="coarse groups of the vocabulary, the parts of compound features (default 64; "
+        "16 on the car: coarser parts)",
+    )
+    parser.add_argument(
         "--resume",
         type=Path,
         default=None,
@@ -81,14 +89,18 @@ def main() -> None:
         args.compaction = saved.pop("compaction", False)
         args.compaction_tolerance = saved.pop("compaction_tolerance", None)
         args.structures = saved.pop("structures", 1)
+        args.vocabulary_groups = saved.pop("vocabulary_groups", None)
         run = {**saved, "out": args.resume, "progress": run["progress"]}
         args.env, args.env_kwargs = saved["env_id"], saved["env_kwargs"]
     interrupt_on_sigterm()
     env = gym.make(args.env, **args.env_kwargs)
     env.close()
     if isinstance(env.action_space, gym.spaces.Box):
-        if args.compounds or args.compaction:
-            parser.error("--compounds and --compaction apply to RLVC (discrete actions), not RLJC")
+        if args.compounds or args.compaction or args.vocabulary_groups is not None:
+            parser.error(
+                "--compounds, --compaction and --vocabulary-groups apply to RLVC (discrete "
+                "actions), not RLJC"
+            )
         train_rljc(**run)
     else:
         train_rlvc(
@@ -97,6 +109,7 @@ def main() -> None:
             compaction=args.compaction,
             compaction_tolerance=args.compaction_tolerance,
             structures=args.structures,
+            vocabulary_groups=args.vocabulary_groups or VOCABULARY_GROUPS,
         )
 
 

@@ -179,6 +179,8 @@ def test_unlearned_agent_explains_itself():
         RLVCAgent(small_maze(), epsilon=2.0)
     with pytest.raises(ValueError, match="structures must be >= 1, got 0"):
         RLVCAgent(small_maze(), compaction=True, structures=0)
+    with pytest.raises(ValueError, match="vocabulary_groups must be >= 1, got 0"):
+        RLVCAgent(small_maze(), vocabulary_groups=0)
     with pytest.raises(ValueError, match="total_timesteps must be an integer >= databases"):
         agent.learn(2)
 
@@ -323,14 +325,22 @@ def test_train_rlvc_writes_a_summary_that_its_saved_agent_reproduces(tmp_path):
     assert summary["starts_never_exiting"] == int((result.returns == 0).sum())
 
 
-def test_train_rlvc_passes_the_compaction_tolerance_and_keeps_it_for_resuming(tmp_path):
+def test_train_rlvc_passes_its_options_to_the_agent_and_keeps_them_for_resuming(tmp_path):
     run = dict(env_kwargs=SMALL, interactions=2000, out=tmp_path, progress=False, pictures=False)
-    summary = train_rlvc(**run, compaction=True, compaction_tolerance=0.01)
-    assert summary["compaction_tolerance"] == 0.01
+    options = dict(compounds=True, compaction=True, compaction_tolerance=0.01)
+    summary = train_rlvc(**run, **options, vocabulary_groups=4)
+    assert summary["compaction_tolerance"] == 0.01 and summary["vocabulary_groups"] == 4
     agent = RLVCAgent.load(tmp_path / "rlvc_agent.pt", gym.make("vistask/VisualMaze-v0", **SMALL))
     assert agent.compaction and agent.compaction_tolerance == 0.01
+    assert agent.vocabulary_groups == 4 and len(agent.extractor.groups.centres) == 4
+    # A compound's parts are the groups of its words (or earlier compounds, above them).
+    words = agent.extractor.n_features
+    for compound in agent.rlvc.compounds:
+        assert all(p < 4 or p >= words for p in (compound.first, compound.second))
     with pytest.raises(ValueError, match=r"other settings \(compaction_tolerance\)"):
-        train_rlvc(**run, compaction=True, compaction_tolerance=0.05)
+        train_rlvc(**run, **{**options, "compaction_tolerance": 0.05}, vocabulary_groups=4)
+    with pytest.raises(ValueError, match=r"other settings \(vocabulary_groups\)"):
+        train_rlvc(**run, **options)
 
 
 def test_train_rlvc_fuses_class_structures_and_the_saved_agent_acts_on_them(tmp_path):

@@ -24,7 +24,7 @@ from stable_baselines3.common.evaluation import evaluate_policy as sb3_evaluate_
 
 import vistask.envs  # noqa: F401  (registers the environments)
 from vistask.agents import RLVCAgent
-from vistask.agents.visual_agent import VisualAgent
+from vistask.agents.visual_agent import VOCABULARY_GROUPS, VisualAgent
 from vistask.checks import check_at_least
 from vistask.envs.car_plots import percepts_at, plot_car_policy, plot_road, state_grid
 from vistask.envs.maze_oracle import Policy
@@ -267,6 +267,7 @@ def train_rlvc(
     compaction: bool = False,
     compaction_tolerance: float | None = None,
     structures: int = 1,
+    vocabulary_groups: int = VOCABULARY_GROUPS,
     eval_starts: int = EVAL_STARTS,
 ) -> dict:
     """Learn visual classes with ``RLVCAgent``'s defaults, score the greedy policy, save the
@@ -285,6 +286,8 @@ def train_rlvc(
         compaction: hold the agent's classes in a BDD and merge them (``compaction``).
         compaction_tolerance: the agent's ``compaction_tolerance`` (None: its default).
         structures: class structures the agent fuses when learning ends (``structures``).
+        vocabulary_groups: coarse groups of the agent's vocabulary, the parts of its
+            compounds (``vocabulary_groups``).
         eval_starts: starts the greedy policy is scored from on the maze and the car (seeded
             episodes on an env without an oracle); fewer score faster and noisier.
 
@@ -302,6 +305,8 @@ def train_rlvc(
         options["compaction_tolerance"] = compaction_tolerance
     if structures != 1:  # runs saved without the option resume as before
         options["structures"] = structures
+    if vocabulary_groups != VOCABULARY_GROUPS:
+        options["vocabulary_groups"] = vocabulary_groups
     check_same_settings(out / "settings.json", {**settings, "seed": seed, **options})
     env = gym.make(env_id, **(env_kwargs or {}))
     scorer = Scorer(env_id, env_kwargs, eval_starts)
@@ -325,6 +330,7 @@ def train_rlvc(
         "compaction_tolerance": agent.compaction_tolerance if compaction else None,
         "structures": agent.structures,
         "vocabulary_size": agent.extractor.n_features,
+        "vocabulary_groups": agent.vocabulary_groups,
         "interactions": agent.num_timesteps,
         "eval_starts": eval_starts,
         "evaluations": evaluations.evaluations,
