@@ -8,8 +8,9 @@ import gymnasium as gym
 import numpy as np
 import torch
 
-from vistask.agents.visual_agent import VOCABULARY_GROUPS, VisualAgent
+from vistask.agents.visual_agent import VisualAgent
 from vistask.checks import check_at_least, check_integers
+from vistask.features.vocabulary import VOCABULARY_GROUPS
 from vistask.parallel import check_not_importing_main
 from vistask.rlvc import RLVC, VisualClassifier
 

@@ -16,12 +16,12 @@ import torch
 from vistask.agents.sb3_model import SB3Model
 from vistask.checks import check_at_least, check_integers
 from vistask.features import SiftExtractor, VisualFeatureExtractor
+from vistask.features.vocabulary import VOCABULARY_GROUPS
 from vistask.rlvc import InteractionDatabase, StageRecord, check_image_env, collect
 from vistask.saving import load_state, save_state
 
 MAX_BLOCKED = 2  # an epsilon-greedy episode ends after this many blocked moves in a row
 VOCABULARY_SAMPLE = 20_000  # descriptors that k-means fits the vocabulary on
-VOCABULARY_GROUPS = 64  # coarse groups of the vocabulary tree (RLVCAgent's vocabulary_groups)
 
 
 def space_state(space: gym.spaces.Discrete | gym.spaces.Box) -> dict:

@@ -20,10 +20,10 @@ from pathlib import Path
 import gymnasium as gym
 
 import vistask.envs  # noqa: F401  (registers the environments)
-from vistask.agents.visual_agent import VOCABULARY_GROUPS
 from vistask.cli import interrupt_on_sigterm, positive_int, stopped_run_settings, unit_fraction
 from vistask.experiments.train_rljc import train_rljc
 from vistask.experiments.train_rlvc import train_rlvc
+from vistask.features.vocabulary import VOCABULARY_GROUPS
 
 
 def main() -> None:

@@ -24,13 +24,14 @@ from stable_baselines3.common.evaluation import evaluate_policy as sb3_evaluate_
 
 import vistask.envs  # noqa: F401  (registers the environments)
 from vistask.agents import RLVCAgent
-from vistask.agents.visual_agent import VOCABULARY_GROUPS, VisualAgent
+from vistask.agents.visual_agent import VisualAgent
 from vistask.checks import check_at_least
 from vistask.envs.car_plots import percepts_at, plot_car_policy, plot_road, state_grid
 from vistask.envs.maze_oracle import Policy
 from vistask.envs.maze_plots import percept_grid, plot_policy, plot_values
 from vistask.experiments.tasks import CarTask, MazeTask, Task, task_for
 from vistask.features import draw_compound
+from vistask.features.vocabulary import VOCABULARY_GROUPS
 from vistask.rlvc import InteractionDatabase, Transitions
 from vistask.rlvc.solver import estimate_mdp, value_iteration
 from vistask.runs import check_same_settings, print_table, run_dir, write_summary

@@ -27,6 +27,7 @@ from vistask.kmeans import kmeans, nearest_centroids
 from vistask.saving import load_state, save_state
 
 SMALL_BATCH = 200  # descriptors: below, one product with every prototype beats the group loop
+VOCABULARY_GROUPS = 64  # coarse groups of a vocabulary tree, unless told otherwise
 
 
 @dataclass
@@ -232,7 +233,7 @@ class VisualFeatureExtractor:
         max_descriptors: int = 60_000,
         iters: int = 15,
         max_distance: float | None = None,
-        groups: int = 64,
+        groups: int = VOCABULARY_GROUPS,
         probes: int = 3,
         seed: int = 0,
     ) -> VisualFeatureExtractor:
