@@ -31,13 +31,14 @@ def grid_positions(env: VisualMazeEnv, grid: int) -> np.ndarray:
 def percept_grid(
     env: VisualMazeEnv, fn: Callable[[list[np.ndarray]], np.ndarray], grid: int = 50
 ) -> np.ndarray:
-    """Evaluate ``fn`` (a batch of percepts -> (n,) values) at every grid cell: (grid, grid).
-    Cells that are not free (obstacles, exits) are NaN."""
+    """Evaluate ``fn`` (a batch of percepts -> (n,) values, or (n, k)) at every grid cell:
+    (grid, grid), or (grid, grid, k). Cells that are not free (obstacles, exits) are NaN."""
     points = grid_positions(env, grid)
     free = env.geometry.is_free(points)
-    values = np.full(len(points), np.nan)
-    values[free] = np.asarray(fn([env.percept_at(p) for p in points[free]]), dtype=np.float64)
-    return values.reshape(grid, grid)
+    found = np.asarray(fn([env.percept_at(p) for p in points[free]]), dtype=np.float64)
+    values = np.full((len(points), *found.shape[1:]), np.nan)
+    values[free] = found
+    return values.reshape(grid, grid, *found.shape[1:])
 
 
 def _mask_blocked(env: VisualMazeEnv, values: np.ndarray) -> np.ndarray:

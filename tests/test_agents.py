@@ -179,6 +179,8 @@ def test_unlearned_agent_explains_itself():
         RLVCAgent(small_maze(), epsilon=2.0)
     with pytest.raises(ValueError, match="structures must be >= 1, got 0"):
         RLVCAgent(small_maze(), compaction=True, structures=0)
+    with pytest.raises(ValueError, match="nearest_seen on the classes of the nearest"):
+        RLVCAgent(small_maze(), compaction=True, structures=3, nearest_seen=True)
     with pytest.raises(ValueError, match="vocabulary_groups must be >= 1, got 0"):
         RLVCAgent(small_maze(), vocabulary_groups=0)
     with pytest.raises(ValueError, match="total_timesteps must be an integer >= databases"):
@@ -350,6 +352,7 @@ def test_train_rlvc_fuses_class_structures_and_the_saved_agent_acts_on_them(tmp_
     env = gym.make("vistask/VisualMaze-v0", **SMALL)
     agent = RLVCAgent.load(tmp_path / "rlvc_agent.pt", env)
     assert agent.structures == 3 and agent.rlvc.n_classes == summary["classes"]
+    assert len(agent.rlvc.committee.structures) == 3  # the policy acts on them
     starts = start_positions(env.unwrapped.geometry, 100)
     assert evaluate_policy(env, agent_policy(agent), starts).mean == pytest.approx(
         summary["rlvc_return"]

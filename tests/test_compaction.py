@@ -8,6 +8,7 @@ from vistask.rlvc import (
     RLVC,
     ClassBDD,
     ClassTree,
+    Committee,
     InteractionDatabase,
     acceptable,
     interchangeable,
@@ -443,7 +444,7 @@ def test_regrow_keeps_every_percept_in_its_class_and_q_solved_on_them():
 
 
 @pytest.mark.parametrize("workers", [1, 2])
-def test_fuse_gives_each_class_the_mean_q_of_its_percepts_over_the_structures(workers):
+def test_fuse_classes_hold_the_mean_q_of_their_percepts_and_greedy_acts_on_the_structures(workers):
     # Rewards that three features set through noise: bootstrap samples split them differently.
     rng = np.random.default_rng(5)
     n = 1500
@@ -461,12 +462,16 @@ def test_fuse_gives_each_class_the_mean_q_of_its_percepts_over_the_structures(wo
     rlvc.learn(db, progress=False)
     # The structures that fuse learns, made again by brute force: the same bootstrap samples.
     generator = torch.Generator().manual_seed(7)
-    structures = [(rlvc.structure.classify(db.presence), rlvc.q.clone())]
+    learned = [(rlvc.structure, rlvc.q.clone())]
     for _ in range(2):
         sample = torch.randint(len(db), (len(db),), generator=generator)
         other = RLVC(db.n_features, 2, gamma=0.9, compaction=True, compaction_tolerance=0.01)
         other.learn(db.take(sample), progress=False)
-        structures.append((other.structure.classify(db.presence), other.q))
+        learned.append((other.structure, other.q))
+    structures = [(structure.classify(db.presence), q) for structure, q in learned]
+    new_percepts = torch.from_numpy(rng.random((500, 12)) < 0.5)
+    votes = [[q[int(c)] for c in structure.classify(new_percepts)] for structure, q in learned]
+    committee_greedy = [int(torch.argmax(sum(v))) for v in zip(*votes, strict=True)]
     mean_q = [
         sum(q[int(classes[i])] for classes, q in structures) / 3 for i in range(len(db.presence))
     ]
@@ -482,5 +487,40 @@ def test_fuse_gives_each_class_the_mean_q_of_its_percepts_over_the_structures(wo
     for c in range(rlvc.n_classes):
         members = [mean_q[i] for i in range(len(cells)) if fused[i] == c]
         torch.testing.assert_close(rlvc.q[c], sum(members) / len(members))
+    # The policy is the structures': on new percepts, the action of the best mean Q of the
+    # classes each puts them in.
+    assert rlvc.greedy(new_percepts).tolist() == committee_greedy
+    loaded = RLVC.from_state_dict(rlvc.state_dict())
+    assert torch.equal(loaded.greedy(new_percepts), rlvc.greedy(new_percepts))
+    rlvc.learn(db, progress=False)  # the classes change: the committee goes
+    assert rlvc.committee is None
     with pytest.raises(ValueError, match="compaction=True"):
         RLVC(db.n_features, 2, gamma=0.9).learn(db, progress=False).fuse(db, 3)
+
+
+def test_a_committee_acts_on_the_mean_q_of_the_class_each_structure_gives():
+    # Structure a reads feature 0, b feature 1; their Q disagree where both are present.
+    a, b = ClassBDD(3), ClassBDD(3)
+    a.split(0, 0)
+    b.split(0, 1)
+    q_a = torch.tensor([[1.0, 0.0], [0.0, 1.0]])
+    q_b = torch.tensor([[0.0, 0.5], [3.0, 0.0]])
+    committee = Committee.of([a, b], [q_a, q_b])
+    presence = torch.tensor([[0, 0, 1], [1, 0, 0], [0, 1, 0], [1, 1, 1]], dtype=torch.bool)
+    expected = torch.stack([q_a[[0, 1, 0, 1]], q_b[[0, 0, 1, 1]]]).mean(0)
+    assert committee.classify(presence).tolist() == [[0, 0], [1, 0], [0, 1], [1, 1]]
+    torch.testing.assert_close(committee.mean_q(committee.classify(presence)), expected.double())
+    assert committee.greedy(presence).tolist() == [0, 1, 0, 0]
+    assert all(not s.in_bdd for s in committee.structures)  # kept as their history
+    loaded = Committee.from_state_dict(committee.state_dict())
+    assert torch.equal(loaded.classify(presence), committee.classify(presence))
+    assert all(torch.equal(x, y) for x, y in zip(loaded.q, committee.q, strict=True))
+    # An RLVC with a committee acts on it, not on its classes' Q.
+    rlvc = RLVC(3, 2, gamma=0.9, compaction=True)
+    rlvc.committee = committee
+    assert rlvc.greedy(presence).tolist() == [0, 1, 0, 0]
+    assert rlvc.q.argmax(1)[rlvc.classify(presence)].tolist() == [0, 0, 0, 0]
+    with pytest.raises(ValueError, match=r"Q must be \(classes, actions\) = \(2, A\)"):
+        Committee.of([a], [torch.zeros(3, 2)])
+    with pytest.raises(ValueError, match="one Q per structure"):
+        Committee.of([a, b], [q_a])

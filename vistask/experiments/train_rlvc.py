@@ -134,13 +134,21 @@ class EvaluateEvery(BaseCallback):
         return True
 
 
+def classes_and_actions(agent: RLVCAgent, images: list[np.ndarray]) -> np.ndarray:
+    """(N, 2) the visual class and the greedy action of each image (after ``RLVC.fuse`` the
+    action is the structures', not the class's)."""
+    rlvc = agent.rlvc
+    presence = agent.extractor.presence(images, rlvc.compounds)
+    return np.stack([rlvc.classify(presence).numpy(), rlvc.greedy(presence).numpy()], 1)
+
+
 def maze_pictures(agent: RLVCAgent, task: MazeTask, out: Path) -> dict:
     """Fig. 4 (values) and Fig. 3 right (policies) over the true positions, and how often the
     greedy action is the oracle's on a 50 x 50 grid."""
     maze, oracle = task.env, task.oracle
-    classes = percept_grid(maze, lambda images: agent.classifier.classify(images).numpy(), 50)
-    free = ~np.isnan(classes)
-    index = np.nan_to_num(classes).astype(int)
+    found = percept_grid(maze, lambda images: classes_and_actions(agent, images), 50)
+    free = ~np.isnan(found[..., 0])
+    index = np.nan_to_num(found[..., 0]).astype(int)
     values = np.where(free, agent.rlvc.values().numpy()[index], np.nan)
     plot_values(
         maze,
@@ -148,7 +156,7 @@ def maze_pictures(agent: RLVCAgent, task: MazeTask, out: Path) -> dict:
         out / "value_functions.png",
         title="Fig. 4: optimal vs RLVC value function",
     )
-    actions = np.where(free, agent.rlvc.q.argmax(1).numpy()[index], 0)
+    actions = np.where(free, np.nan_to_num(found[..., 1]), 0).astype(int)
     plot_policy(maze, actions[::2, ::2], out / "rlvc_policy.png", title="RLVC greedy policy")
     plot_policy(maze, oracle.policy[::2, ::2], out / "oracle_policy.png", title="Oracle policy")
     return {"policy_agreement_with_oracle": float((actions == oracle.policy)[free].mean())}
@@ -163,8 +171,7 @@ def car_pictures(agent: RLVCAgent, task: CarTask, out: Path, grid: int = 50) -> 
     plot_road(car, np.array([-0.5, 1.0]), out / "road_and_gauge.png")
     states = state_grid(grid)
     percepts = list(percepts_at(car, states))
-    classes = agent.classifier.classify(percepts).numpy()
-    actions = rlvc.q.argmax(1).numpy()[classes]
+    classes, actions = classes_and_actions(agent, percepts).T
     oracle = task.oracle.act(states)
     plot_car_policy(
         {

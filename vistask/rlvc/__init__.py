@@ -1,9 +1,11 @@
 """RLVC: reinforcement learning of visual classes (interaction database, class tree or BDD, Q
-solver, split search, compaction, learner, new percepts by the nearest learned ones), and
-RLJC: joint classes of percepts and continuous actions (joint tree, learner)."""
+solver, split search, compaction, learner, new percepts by the nearest learned ones, fused
+structures acting as a committee), and RLJC: joint classes of percepts and continuous actions
+(joint tree, learner)."""
 
 from vistask.rlvc.bdd import ClassBDD
 from vistask.rlvc.classifier import JointClassifier, VisualClassifier
+from vistask.rlvc.committee import Committee
 from vistask.rlvc.compaction import acceptable, interchangeable, merge_groups
 from vistask.rlvc.database import (
     InteractionDatabase,
@@ -27,6 +29,7 @@ __all__ = [
     "ClassBDD",
     "ClassMDP",
     "ClassTree",
+    "Committee",
     "InteractionDatabase",
     "JointClassifier",
     "JointTree",
