@@ -156,7 +156,7 @@ def maze_pictures(agent: RLVCAgent, task: MazeTask, out: Path) -> dict:
         out / "value_functions.png",
         title="Fig. 4: optimal vs RLVC value function",
     )
-    actions = np.where(free, np.nan_to_num(found[..., 1]), 0).astype(int)
+    actions = np.nan_to_num(found[..., 1]).astype(int)  # 0 where not free
     plot_policy(maze, actions[::2, ::2], out / "rlvc_policy.png", title="RLVC greedy policy")
     plot_policy(maze, oracle.policy[::2, ::2], out / "oracle_policy.png", title="Oracle policy")
     return {"policy_agreement_with_oracle": float((actions == oracle.policy)[free].mean())}
