@@ -14,7 +14,7 @@ from vistask.features import (
     add_compound_occurrences,
     propose,
 )
-from vistask.features.compounds import match, presence_of_candidates
+from vistask.features.compounds import compound_occurrences, match, presence_of_candidates
 from vistask.rlvc import RLVC, InteractionDatabase
 from vistask.rlvc.compound_search import ReductionRank, find_compound_splits
 
@@ -57,6 +57,25 @@ def test_compound_presence_equals_brute_force_on_random_keypoints():
             assert np.array_equal(got[:, k], brute_force_presence(occ, c)), (trial, c)
         with_compounds = add_compound_occurrences(occ, compounds, first_id=5)
         assert np.array_equal(with_compounds.presence(11).numpy()[:, 5:], got)
+
+
+def test_compounds_of_compounds_are_added_as_one_at_a_time_would_add_them():
+    rng = np.random.default_rng(1)
+    for trial in range(20):
+        occ = random_occurrences(rng, per_image=12)
+        compounds = [  # parts 0-4 are words, 5 on the compounds before
+            Compound(int(a), int(b), tuple(rng.uniform(-6, 6, 2)), float(rng.uniform(2, 8)))
+            for a, b in (rng.integers(0, 5 + c, 2) for c in range(8))
+        ]
+        one_at_a_time = occ
+        for c, compound in enumerate(compounds):
+            one_at_a_time = one_at_a_time.merge(
+                compound_occurrences(one_at_a_time, compound, 5 + c)
+            )
+        got = add_compound_occurrences(occ, compounds, first_id=5)
+        assert (got.feature >= 5).any(), trial
+        for key in ("image", "feature", "xy", "scale", "part"):
+            assert np.array_equal(getattr(got, key), getattr(one_at_a_time, key)), (trial, key)
 
 
 def test_a_candidate_of_parts_the_images_do_not_show_is_absent():

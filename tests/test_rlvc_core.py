@@ -18,6 +18,7 @@ from vistask.rlvc import (
     value_iteration,
     vector_copies,
 )
+from vistask.rlvc.database import _set_madvise_hugepage
 
 
 def sparse(presence: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -142,6 +143,16 @@ def test_split_search_equals_a_per_class_brute_force():
             assert split.reduction == pytest.approx(reduction, rel=1e-9)
             assert split.p_value == pytest.approx(p_value, rel=1e-6)
         assert [s.reduction for s in splits] == sorted((s.reduction for s in splits), reverse=True)
+    # A class too small to split (class 5: 12 interactions over 3 actions) takes no part,
+    # whatever its TD errors, and the others split as brute force says.
+    small, loud = states.clone(), deltas.clone()
+    small[:12], loud[:12] = 5, loud[:12] + 50.0 * presence[:12, 0]
+    splits = find_splits(rows, features, small, actions, loud, 6, n_actions, f, 0.05, 8)
+    expected = brute_force_splits(presence, small, actions, loud, 6, n_actions, 0.05, 8)
+    assert 5 not in expected and len(expected) >= 4
+    assert {(s.state, s.action, s.feature) for s in splits} == {
+        (state, e[1], e[2]) for state, e in expected.items()
+    }
 
 
 def test_value_iteration_matches_a_hand_solved_mdp():
@@ -254,6 +265,27 @@ def test_collect_cuts_episodes_stuck_against_a_wall():
     assert longest == 2  # an episode never makes a third blocked move in a row
     uncut = collect(env, 300, push_left, seed=0)
     assert (uncut.obs == uncut.next_obs).mean() > 0.8 > 0.6 > blocked.mean()
+
+
+def test_collect_keeps_percepts_on_base_pages_and_restores_numpys_setting():
+    env = gym.make("vistask/VisualMaze-v0")
+    inside = []
+
+    def record(views, rng):  # numpy's huge-page setting while collect runs
+        inside.append(_set_madvise_hugepage(False))
+        _set_madvise_hugepage(inside[-1])
+        return rng.integers(0, 4, len(views))
+
+    original = _set_madvise_hugepage(True)
+    try:
+        for setting in (True, False):
+            _set_madvise_hugepage(setting)
+            collect(env, 20, record, seed=0)
+            assert _set_madvise_hugepage(original) is setting  # as it was before
+            assert inside and not any(inside)
+            inside.clear()
+    finally:
+        _set_madvise_hugepage(original)
 
 
 def test_side_by_side_episodes_are_seeded_and_stay_linked():
