@@ -7,6 +7,7 @@ import torch
 
 import vistask.envs  # noqa: F401  (registers the maze)
 from vistask.envs import VisualMazeEnv, VisualMazeVectorEnv
+from vistask.memory import _set_madvise_hugepage
 from vistask.rlvc import (
     RLVC,
     ClassTree,
@@ -18,7 +19,6 @@ from vistask.rlvc import (
     value_iteration,
     vector_copies,
 )
-from vistask.rlvc.database import _set_madvise_hugepage
 
 
 def sparse(presence: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -267,22 +267,30 @@ def test_collect_cuts_episodes_stuck_against_a_wall():
     assert (uncut.obs == uncut.next_obs).mean() > 0.8 > 0.6 > blocked.mean()
 
 
-def test_collect_keeps_percepts_on_base_pages_and_restores_numpys_setting():
+def test_collecting_and_learning_run_on_base_pages_and_restore_numpys_setting():
     env = gym.make("vistask/VisualMaze-v0")
     inside = []
 
-    def record(views, rng):  # numpy's huge-page setting while collect runs
+    def record(*_) -> None:  # numpy's huge-page setting inside collect and learn
         inside.append(_set_madvise_hugepage(False))
         _set_madvise_hugepage(inside[-1])
+
+    def policy(views, rng):
+        record()
         return rng.integers(0, 4, len(views))
 
+    db = synthetic_chain(n=300, seed=0)
     original = _set_madvise_hugepage(True)
     try:
         for setting in (True, False):
             _set_madvise_hugepage(setting)
-            collect(env, 20, record, seed=0)
-            assert _set_madvise_hugepage(original) is setting  # as it was before
-            assert inside and not any(inside)
+            collect(env, 20, policy, seed=0)
+            assert _set_madvise_hugepage(setting) is setting  # as it was before
+            RLVC(db.n_features, 2, gamma=0.9).learn(
+                db, max_stages=2, progress=False, on_stage=record
+            )
+            assert _set_madvise_hugepage(original) is setting
+            assert len(inside) > 1 and not any(inside)
             inside.clear()
     finally:
         _set_madvise_hugepage(original)

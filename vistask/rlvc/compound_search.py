@@ -138,7 +138,8 @@ def find_compound_splits(
         to_beat: primitive splits of some classes (``find_splits``), the reductions that
             their compound splits must exceed.
         threads: classes searched side by side (numpy lets go of the GIL in the search's
-            large array operations: 1.4-1.7 times faster in two threads).
+            large array operations; on the car, two threads search 8 classes at 101 classes
+            1.8-2 times as fast as one, and the first database's large classes as fast).
 
     Returns:
         (split, compound) pairs (``split.feature`` is -1 until the compound gets a feature

@@ -10,8 +10,7 @@ scatter-adds (sparse products) instead of dense (interactions x features) produc
 from __future__ import annotations
 
 import copy
-from collections.abc import Callable, Iterator, Sequence
-from contextlib import contextmanager
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 
 import gymnasium as gym
@@ -27,11 +26,7 @@ from vistask.features import (
     check_image_space,
 )
 from vistask.features.compounds import concatenated_ranges
-
-try:
-    from numpy._core.multiarray import _set_madvise_hugepage
-except ImportError:  # numpy < 2
-    from numpy.core.multiarray import _set_madvise_hugepage
+from vistask.memory import base_pages
 
 # An exploration policy maps a batch of observations (B, H, W, 3) and a generator to (B,)
 # action ids, or (B, m) continuous actions: batches let a policy over visual classes extract
@@ -117,25 +112,6 @@ def _copy(env: gym.Env) -> gym.Env:
         except Exception:  # a wrapper that does not record its arguments, say
             pass
     return copy.deepcopy(env)
-
-
-@contextmanager
-def base_pages() -> Iterator[None]:
-    """numpy's new arrays on the kernel's base pages, not transparent huge pages, inside the
-    block.
-
-    numpy asks the kernel for huge pages for every array of 4 MB or more. Collecting keeps
-    every batch of percepts, so each step's arrays take memory that was never touched, and
-    a huge page costs far more to fault in than the base pages it replaces on some machines:
-    a step of 128 car percepts took 33-61 ms instead of 7-8 ms, and collecting 10,000 random
-    interactions 7.7-9.4 s instead of 1.4-1.9 s (a 2-core VM whose kernel gives huge pages
-    on request).
-    """
-    before = _set_madvise_hugepage(False)
-    try:
-        yield
-    finally:
-        _set_madvise_hugepage(before)
 
 
 @base_pages()  # each call runs inside the block

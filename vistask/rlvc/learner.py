@@ -26,6 +26,7 @@ import torch
 from tqdm.auto import tqdm
 
 from vistask.features import Compound
+from vistask.memory import base_pages
 from vistask.parallel import map_runs
 from vistask.rlvc.bdd import ClassBDD
 from vistask.rlvc.committee import Committee, history_only
@@ -228,7 +229,7 @@ class RLVC:
             raise ValueError(f"max_stages must be >= 1, got {max_stages}")
         self.seen = self.committee = None  # the classes change
         threads = torch.get_num_threads()  # the compound search's, outside the block below
-        with single_thread():
+        with single_thread(), base_pages():
             return self._learn(db, max_stages, progress, on_stage, threads)
 
     def _learn(self, db, max_stages, progress, on_stage, threads) -> RLVC:
