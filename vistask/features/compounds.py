@@ -234,12 +234,12 @@ def add_compound_occurrences(
     made: list[Occurrences] = []  # compound c's occurrences
     for c, compound in enumerate(compounds):
         parts = sorted({compound.first, compound.second})
-        mine = [
+        in_occ = [
             by_part[np.searchsorted(part_of, p) : np.searchsorted(part_of, p, "right")]
             for p in parts
         ]
         earlier = [made[p - first_id] for p in parts if 0 <= p - first_id < len(made)]
-        of_parts = occ.take(np.sort(np.concatenate(mine))).merge(*earlier)
+        of_parts = occ.take(np.sort(np.concatenate(in_occ))).merge(*earlier)
         made.append(compound_occurrences(of_parts, compound, first_id + c))
     return occ.merge(*made)
 
