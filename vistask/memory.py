@@ -29,7 +29,7 @@ def base_pages() -> Iterator[None]:
 
     Example:
         >>> with base_pages():
-        ...     transitions = collect(env, 10_000)
+        ...     table = np.zeros((50_000, 640), np.float32)  # 128 MB on base pages
     """
     before = _set_madvise_hugepage(False)
     try:
