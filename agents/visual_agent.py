@@ -239,7 +239,10 @@ class VisualAgent(SB3Model):
         t1 = time.perf_counter()
         detected, fitting = None, 0.0  # later databases: the cache holds what the policy saw
         if self.extractor is None:
-            keypoints = SiftExtractor(self.contrast_threshold, self.max_keypoints)
+            panel_widths = getattr(self.env.unwrapped, "panel_widths", ())
+            keypoints = SiftExtractor(
+                self.contrast_threshold, self.max_keypoints, panel_widths=panel_widths
+            )
             detected = keypoints.batch(transitions.percepts)
             t2 = time.perf_counter()
             self.extractor = VisualFeatureExtractor.fit(

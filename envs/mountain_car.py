@@ -422,6 +422,7 @@ class VisualMountainCarEnv(gym.Env):
     (p < -1) or over the speed limit (|s| > 3), both terminal; 0 otherwise. ``gamma`` = 0.95.
     ``info["position"]`` holds the true state (p, s) (for oracles and plots only; agents must
     not use it). Starts are uniform in [-1, 1) x [-3, 3), or ``options={"state": (p, s)}``.
+    ``panel_widths`` (road_width, height) tells feature extractors where the two views meet.
 
     Example:
         >>> import gymnasium as gym, vistask.envs
@@ -461,6 +462,8 @@ class VisualMountainCarEnv(gym.Env):
         shape = (self.percepts.height, self.percepts.width, 3)
         self.observation_space = spaces.Box(0, 255, shape, np.uint8)
         self.action_space = spaces.Discrete(len(CAR_ACTION_NAMES))
+        # The percept's two views, left to right: feature extractors run on each alone.
+        self.panel_widths = (self.percepts.road_width, self.percepts.gauge_size)
         self.state = np.zeros(2)
 
     def percept_at(self, state: np.ndarray) -> np.ndarray:
@@ -546,6 +549,10 @@ class VisualMountainCarVectorEnv(BatchedCopies):
     @property
     def gamma(self) -> float:
         return self.car.gamma
+
+    @property
+    def panel_widths(self) -> tuple[int, int]:
+        return self.car.panel_widths
 
     def reset(self, *, seed: int | list[int | None] | None = None, options: dict | None = None):
         options = options or {}

@@ -402,6 +402,8 @@ def test_train_rlvc_on_the_car_scores_against_its_oracle_and_draws_it(tmp_path):
     for picture in ("road_and_gauge.png", "car_policy.png", "car_classes.png"):
         assert (tmp_path / picture).stat().st_size > 0
     # That a saved agent reproduces its return is checked on the maze, where it is cheap.
-    assert RLVCAgent.load(tmp_path / "rlvc_agent.pt").rlvc.compounds
+    loaded = RLVCAgent.load(tmp_path / "rlvc_agent.pt")
+    assert loaded.rlvc.compounds
+    assert loaded.extractor.keypoints.panel_widths == (96, 96)  # the road and the gauge alone
     with pytest.raises(ValueError, match="eval_starts must be >= 1, got 0"):
         train_rlvc(env_id, out=tmp_path / "none", eval_starts=0)

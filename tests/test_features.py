@@ -64,6 +64,48 @@ def test_extraction_threads_follow_the_cpus_ray_gives_a_task(monkeypatch):
     assert SiftExtractor(threads=3).threads == 3
 
 
+def sift_alone(view: np.ndarray, left: int) -> list[tuple]:
+    """Brute force: (response, x, y, descriptor) of every keypoint of a view alone, x in the
+    percept."""
+    grey = cv2.cvtColor(view, cv2.COLOR_RGB2GRAY)
+    points, descriptors = cv2.SIFT_create(contrastThreshold=0.02).detectAndCompute(grey, None)
+    x = [np.float32(p.pt[0]) + np.float32(left) for p in points]  # float32, as the extractor's
+    return [(p.response, x, p.pt[1], d) for p, x, d in zip(points, x, descriptors, strict=True)]
+
+
+class CountingViews(SiftExtractor):
+    """Counts the views it runs SIFT on."""
+
+    detected = 0
+
+    def _detect(self, image):
+        self.detected += 1
+        return super()._detect(image)
+
+
+def test_views_side_by_side_are_extracted_alone_once_each_and_the_strongest_kept(percepts):
+    lefts, rights = percepts[:3], percepts[3:5]
+    images = [np.hstack([lefts[i % 3], rights[i % 2]]) for i in range(6)]  # (64, 128, 3)
+    extractor = CountingViews(max_keypoints=10, threads=2, panel_widths=(64, 64))
+    batch = extractor.batch(images)
+    assert extractor.detected == 5  # three left views, two right ones
+    for i, kps in enumerate(batch):
+        alone = sift_alone(lefts[i % 3], 0) + sift_alone(rights[i % 2], 64)
+        strongest = sorted(alone, key=lambda k: -k[0])[:10]
+        # OpenCV orders keypoints of equal response freely: compared as sets.
+        expected = {(round(float(x), 3), round(y, 3), d.tobytes()) for _, x, y, d in strongest}
+        found = zip(kps.xy.astype(float).round(3).tolist(), kps.descriptors, strict=True)
+        assert {(x, y, d.tobytes()) for (x, y), d in found} == expected
+    assert (batch[0].xy[:, 0] >= 64).any() and (batch[0].xy[:, 0] < 64).any()
+    again = [*extractor.batch(images[::-1]), extractor(images[1])]
+    assert extractor.detected == 5  # every view came from the cache
+    for kps, other in zip([*batch[::-1], batch[1]], again, strict=True):
+        np.testing.assert_array_equal(kps.descriptors, other.descriptors)
+    assert pickle.loads(pickle.dumps(extractor))._views == {}
+    with pytest.raises(ValueError, match="add up to 128 pixels, but the image is 64 wide"):
+        extractor(percepts[0])
+
+
 def test_the_same_image_always_gives_the_same_features(extractor, percepts):
     first = extractor.presence(percepts)
     again = extractor.presence(list(reversed(percepts)))

@@ -22,7 +22,7 @@ import numpy as np
 import torch
 
 from vistask.features.compounds import Compound, Occurrences, add_compound_occurrences
-from vistask.features.keypoints import Keypoints, SiftExtractor
+from vistask.features.keypoints import Keypoints, SiftExtractor, image_digest
 from vistask.kmeans import kmeans, nearest_centroids
 from vistask.saving import load_state, save_state
 
@@ -145,13 +145,6 @@ def _assign(
         keep &= dist <= max_distance**2
     rows, column = keep.nonzero(as_tuple=True)
     return rows, index[rows, column]
-
-
-def _digest(image: np.ndarray) -> tuple:
-    """Cache key of an image: its shape and Python's 64-bit (SipHash) hash of its pixels,
-    4x cheaper than a cryptographic digest. Two of 100,000 distinct views collide with
-    probability about 3e-10; the key lives in one process, so the per-process salt is harmless."""
-    return image.shape, hash(image.tobytes())
 
 
 class VisualFeatureExtractor:
@@ -334,7 +327,7 @@ class VisualFeatureExtractor:
         Each distinct image is extracted once: repeats, within the batch or cached from
         earlier calls, are looked up by a digest of their pixels.
         """
-        keys = [_digest(image) for image in images]
+        keys = [image_digest(image) for image in images]
         todo = {key: i for i, key in enumerate(keys) if key not in self._cache}
         found: dict[tuple, tuple] = {}
         if todo:
