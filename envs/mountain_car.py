@@ -550,10 +550,6 @@ class VisualMountainCarVectorEnv(BatchedCopies):
     def gamma(self) -> float:
         return self.car.gamma
 
-    @property
-    def panel_widths(self) -> tuple[int, int]:
-        return self.car.panel_widths
-
     def reset(self, *, seed: int | list[int | None] | None = None, options: dict | None = None):
         options = options or {}
         starts = None

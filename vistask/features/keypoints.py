@@ -11,7 +11,7 @@ from __future__ import annotations
 import itertools
 import os
 import threading
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
@@ -71,6 +71,27 @@ def image_digest(image: np.ndarray) -> tuple:
     4x cheaper than a cryptographic digest. Two of 100,000 distinct views collide with
     probability about 3e-10; the key lives in one process, so the per-process salt is harmless."""
     return image.shape, hash(image.tobytes())
+
+
+def extract_once(
+    cache: dict, images: Sequence[np.ndarray], extract: Callable[[list], list], cache_size: int
+) -> list:
+    """``extract`` of every image, run once per distinct image: repeats, within ``images`` or
+    in ``cache`` from earlier calls, are looked up by ``image_digest``. The new results join
+    ``cache``, which is emptied first when they would take it past ``cache_size`` (0: nothing
+    is cached)."""
+    keys = [image_digest(image) for image in images]
+    todo = {}
+    for key, image in zip(keys, images, strict=True):
+        if key not in cache:
+            todo.setdefault(key, image)
+    found = dict(zip(todo, extract(list(todo.values())), strict=True)) if todo else {}
+    results = [found[key] if key in found else cache[key] for key in keys]
+    if found and cache_size:  # after the lookup: a full cache is emptied below
+        if len(cache) + len(found) > cache_size:
+            cache.clear()  # simpler than LRU, and rare: caches hold thousands of images
+        cache.update(found)
+    return results
 
 
 def _allowed_threads() -> int:
@@ -192,19 +213,12 @@ class SiftExtractor:
         ``panel_widths``, each distinct view once."""
         if not self.panel_widths:
             return [kps for kps, _ in self._map(self._detect, [check_image(i) for i in images])]
-        views = [self._split(check_image(image)) for image in images]
-        keys = [[image_digest(view) for view in image_views] for image_views in views]
-        todo = {}
-        for image_views, image_keys in zip(views, keys, strict=True):
-            for view, key in zip(image_views, image_keys, strict=True):
-                if key not in self._views:
-                    todo.setdefault(key, view)
-        found = dict(zip(todo, self._map(self._detect, list(todo.values())), strict=True))
-        merged = [self._merge([found.get(k) or self._views[k] for k in ks]) for ks in keys]
-        if len(self._views) + len(found) > VIEW_CACHE:  # after the lookup, as it empties
-            self._views.clear()
-        self._views.update(found)
-        return merged
+        views = [view for image in images for view in self._split(check_image(image))]
+        detected = extract_once(
+            self._views, views, lambda todo: self._map(self._detect, todo), VIEW_CACHE
+        )
+        n = len(self.panel_widths)
+        return [self._merge(detected[i : i + n]) for i in range(0, len(detected), n)]
 
     def _split(self, image: np.ndarray) -> list[np.ndarray]:
         """The views of one percept, left to right."""

@@ -22,7 +22,7 @@ import numpy as np
 import torch
 
 from vistask.features.compounds import Compound, Occurrences, add_compound_occurrences
-from vistask.features.keypoints import Keypoints, SiftExtractor, image_digest
+from vistask.features.keypoints import Keypoints, SiftExtractor, extract_once
 from vistask.kmeans import kmeans, nearest_centroids
 from vistask.saving import load_state, save_state
 
@@ -327,17 +327,12 @@ class VisualFeatureExtractor:
         Each distinct image is extracted once: repeats, within the batch or cached from
         earlier calls, are looked up by a digest of their pixels.
         """
-        keys = [image_digest(image) for image in images]
-        todo = {key: i for i, key in enumerate(keys) if key not in self._cache}
-        found: dict[tuple, tuple] = {}
-        if todo:
-            detected = self.keypoints.batch([images[i] for i in todo.values()])
-            found = dict(zip(todo, self._per_image(detected), strict=True))
-        rows = [found[key] if key in found else self._cache[key] for key in keys]
-        if found and self.cache_size:  # after the lookup: a full cache is emptied below
-            if len(self._cache) + len(found) > self.cache_size:
-                self._cache.clear()  # simpler than LRU, and rare: the cache holds 100k views
-            self._cache.update(found)
+        rows = extract_once(
+            self._cache,
+            images,
+            lambda todo: self._per_image(self.keypoints.batch(todo)),
+            self.cache_size,
+        )
         return add_compound_occurrences(self._table(rows), list(compounds), self.n_features)
 
     def presence_of(
