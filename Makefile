@@ -8,7 +8,7 @@ SYSTEM_PACKAGES := libegl1 libosmesa6 libgl1 libusb-1.0-0
 export MUJOCO_GL ?= egl
 export PYOPENGL_PLATFORM ?= egl
 
-.PHONY: demo test test-all lint bench clean system-packages
+.PHONY: demo test test-all lint docs bench clean system-packages
 
 $(STAMP): pyproject.toml constraints.txt
 	$(MAKE) system-packages
@@ -53,8 +53,13 @@ lint: $(STAMP)
 	$(VENV)/bin/ruff check .
 	$(VENV)/bin/ruff format --check .
 
+# The documentation site, warnings as errors (tests/test_docs.py builds it in `make test` too).
+docs: $(STAMP)
+	$(PY) -m sphinx -W --keep-going -q -b html docs docs/_build/html
+	@echo "open docs/_build/html/index.html"
+
 bench: $(STAMP)
 	$(PY) scripts/bench_features.py
 
 clean:
-	rm -rf $(VENV) build *.egg-info
+	rm -rf $(VENV) build *.egg-info docs/_build

@@ -2,7 +2,7 @@
 Q-learning."""
 
 from vistask.agents.rljc_agent import RLJCAgent
-from vistask.agents.rlvc_agent import RLVCAgent
+from vistask.agents.rlvc_agent import Compaction, RLVCAgent
 from vistask.agents.tabular import TabularQAgent
 
-__all__ = ["RLJCAgent", "RLVCAgent", "TabularQAgent"]
+__all__ = ["Compaction", "RLJCAgent", "RLVCAgent", "TabularQAgent"]

@@ -40,19 +40,21 @@ class RLJCAgent(VisualAgent):
     Args:
         env: env with (H, W, 3) or (H, W) uint8 image observations and a bounded ``Box``
             action space of shape (m,) (``None`` only when loading).
-        n_words: vocabulary size: the number of visual features.
-        databases: number of equal databases that ``total_timesteps`` is split into.
-        alpha: significance level of the split t-tests (Welch).
-        min_count: minimum interactions on each side of a split.
-        max_stages: stage cap of the stages that follow each database.
+        n_words: visual features: words of the SIFT vocabulary (>= 2, default 8192).
+        databases: equal databases that ``total_timesteps`` is split into (>= 1, default 3).
+        alpha: significance level of the Welch t-test that accepts a split (in (0, 1),
+            default 0.05).
+        min_count: interactions needed on each side of a split (>= 2, default 10).
+        max_stages: stage cap of the stages that follow each database (>= 1, default 300).
         epsilon: share of exploring draws inside a random compatible box, in the later
-            databases and in ``predict(deterministic=False)``.
-        n_envs: episodes collected side by side on the classes.
-        max_keypoints: SIFT keeps the strongest keypoints of each percept (0: all).
-        contrast_threshold: SIFT's detection threshold (lower: more, weaker keypoints).
-        gamma: discount (default: the env's ``gamma`` attribute if it has one, else 0.99).
-        tensorboard_log: folder of TensorBoard runs (None: no logging).
-        seed: seeds the episodes, the exploration and the vocabulary.
+            databases and in ``predict(deterministic=False)`` (in [0, 1], default 0.1).
+        n_envs: episodes collected side by side on the classes (>= 1, default 128).
+        max_keypoints: strongest SIFT keypoints kept per percept (0: all; default 24).
+        contrast_threshold: SIFT's detection threshold (> 0, default 0.02; lower: more,
+            weaker keypoints).
+        gamma: discount in [0, 1) (default: the env's ``gamma`` attribute, else 0.99).
+        tensorboard_log: folder of TensorBoard runs (None, the default: no logging).
+        seed: seeds the episodes, the exploration and the vocabulary (default 0).
     """
 
     continuous = True

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import gymnasium as gym
@@ -9,37 +10,62 @@ import numpy as np
 import torch
 
 from vistask.agents.visual_agent import VisualAgent
-from vistask.checks import check_at_least, check_integers
+from vistask.checks import check_at_least, check_bools, check_integers
 from vistask.features.vocabulary import VOCABULARY_GROUPS
 from vistask.parallel import check_not_importing_main
 from vistask.rlvc import RLVC, VisualClassifier
 
 
+@dataclass(frozen=True)
+class Compaction:
+    """How ``RLVCAgent(compaction=...)`` merges classes (paper section 2.5.2);
+    ``compaction=True`` takes these defaults.
+
+    Args:
+        tolerance: merge classes whose values, and the values of their greedy actions in each
+            other, differ by at most this share of the range of values (in [0, 1), default
+            0.02).
+        every: also merge every this many stages (>= 1; None, the default: only after each
+            database's stages).
+        structures: when ``learn`` ends, learn this many class structures in all (the learned
+            one and others on bootstrap samples of its interactions) and act on the mean of
+            their Q (>= 1, default 1). The structures learn on the cores side by side, so a
+            script that makes the agent runs under ``if __name__ == "__main__":``.
+
+    Example:
+        >>> agent = RLVCAgent(env, compaction=Compaction(tolerance=0.01, structures=11))
+    """
+
+    tolerance: float = 0.02
+    every: int | None = None
+    structures: int = 1
+
+    def __post_init__(self) -> None:
+        if isinstance(self.tolerance, bool) or not 0 <= self.tolerance < 1:
+            raise ValueError(f"Compaction: tolerance must be in [0, 1), got {self.tolerance!r}")
+        if self.every is not None:
+            check_integers(every=self.every)
+            check_at_least(1, every=self.every)
+        check_integers(structures=self.structures)
+        check_at_least(1, structures=self.structures)
+
+
 class RLVCAgent(VisualAgent):
     """Learns visual classes of an image env by RLVC and acts greedily on them.
 
-    ``learn(total_timesteps)`` collects ``databases`` equal databases of interactions, one
-    after the other: the first with uniformly random actions, each later one epsilon-greedily
-    on the classes learned so far (``n_envs`` episodes side by side), each added to the earlier
-    ones. After each database, RLVC stages run until no class splits (or ``max_stages``): SIFT
-    keypoints of every percept are extracted once, matched to a vocabulary of ``n_words``
-    visual features (fitted on the first database), and classes are split where a feature
-    reduces the variance of the TD errors significantly. A second ``learn`` call continues:
-    more databases, more stages.
+    ``learn(total_timesteps)`` collects ``databases`` equal databases of interactions, the
+    first with uniformly random actions, each later one epsilon-greedily on the classes
+    learned so far, each added to the earlier ones. After each database, RLVC stages run until
+    no class splits (or ``max_stages``): classes are split where the presence of a visual
+    feature (a word of a SIFT vocabulary fitted on the first database) reduces the variance of
+    the TD errors significantly. A second ``learn`` call continues from what was learned.
 
-    An env whose percepts show views side by side says so by a ``panel_widths`` attribute
-    (pixels, left to right; the mountain car's road window and gauge): SIFT then runs on each
-    view alone, once per distinct view (``SiftExtractor(panel_widths=...)``).
-
-    Episodes end where the env ends them: its terminal states and its own time limit (the
-    ``max_episode_steps`` of ``gym.make``); wrap an env without one in ``TimeLimit``.
-
-    Callbacks (SB3's ``BaseCallback``, a list of them, or a function) are called once per
-    RLVC stage, where the policy changes: ``CheckpointCallback(save_freq=50)`` saves every 50
-    stages, ``EvalCallback(eval_env, eval_freq=50)`` evaluates every 50 stages; returning
-    False stops learning. ``num_timesteps`` counts the interactions collected. With
-    ``tensorboard_log``, every stage logs ``rlvc/classes``, ``rlvc/selected_features``,
-    ``rlvc/mean_abs_td`` and ``rlvc/splits``, with the stage as the step.
+    Episodes end where the env ends them (terminal states, its time limit). An env whose
+    percepts show views side by side gives their widths in a ``panel_widths`` attribute: SIFT
+    then runs on each view alone. Callbacks (SB3's ``BaseCallback``, a list, or a function)
+    are called once per stage; returning False stops learning. With ``tensorboard_log``, every
+    stage logs ``rlvc/classes``, ``rlvc/selected_features``, ``rlvc/mean_abs_td``,
+    ``rlvc/splits`` and ``rollout/ep_rew_mean``, with the stage as the step.
 
     Example:
         >>> import gymnasium as gym, vistask.envs
@@ -51,71 +77,33 @@ class RLVCAgent(VisualAgent):
     Args:
         env: env with (H, W, 3) or (H, W) uint8 image observations and ``Discrete`` actions
             (``None`` only when loading, to predict without an env).
-        n_words: vocabulary size: the number of visual features.
-        databases: number of equal databases that ``total_timesteps`` is split into.
-        alpha: significance level of the split t-tests (Welch).
-        min_count: minimum interactions on each side of a split.
-        max_stages: stage cap of the stages that follow each database.
+        n_words: visual features: words of the SIFT vocabulary (>= 2, default 8192).
+        databases: equal databases that ``total_timesteps`` is split into (>= 1, default 4).
+        alpha: significance level of the Welch t-test that accepts a split (in (0, 1),
+            default 0.05).
+        min_count: interactions needed on each side of a split (>= 2, default 10).
+        max_stages: stage cap of the stages that follow each database (>= 1, default 300).
         epsilon: exploration rate of the epsilon-greedy databases and of
-            ``predict(deterministic=False)``.
-        n_envs: episodes collected side by side on the classes, so that features are
-            extracted for batches of views.
-        max_keypoints: SIFT keeps the strongest keypoints of each percept (0: all).
-        contrast_threshold: SIFT's detection threshold. Below SIFT's usual 0.02, dark and
-            smooth views still show keypoints: on one random maze layout, the positions that
-            show none fell from 2.3% to 0.7%, and over ten layouts the mean return rose from
-            0.84 to 0.88 of the oracle's.
-        compounds: make compound features (pairs of parts, coarse groups of words or
-            compounds, in a stable spatial relation) for the most aliased classes, taken
-            where they split better than the class's word split. Off by default: on the maze
-            they leave the mean return as it is (0.940 of the oracle's against 0.939, seeds
-            0-4) at 2.3 times the run time; where a relation carries the state (a gauge's
-            needle), they are what reads it.
-        compaction: hold the classes in a BDD; when the stages of a database end, merge
-            classes with close values and interchangeable greedy actions, then drop the
-            features whose absence leaves every percept seen a good action (with compounds:
-            only where it keeps them among interchangeable classes); splits take a feature
-            the classes already test when it does half as well as the best; when ``learn``
-            ends, the merged classes are grown again as one decision tree over the features
-            they test (``RLVC.regrow``), which classifies unseen views better on place
-            navigation and leaves the mountain car's return about as it was (0.868 of the
-            oracle's against 0.876 before, 1000 starts, seeds 0-4, SIFT on the whole
-            percept). False: a decision tree that only splits, on the best feature.
-        compact_every: with ``compaction``, merge every this many stages as well (None:
-            only when the stages of a database end).
-        compaction_tolerance: merge classes whose values, and the values of their greedy
-            actions in each other, differ by at most this share of the range of values.
-        structures: with ``compaction``, when ``learn`` ends, learn this many class structures
-            in all, the learned one and others on bootstrap samples of its interactions over
-            the features it made, and act on the mean of their Q: each structure classes a
-            percept, and the agent takes the action of best mean Q over the classes it falls
-            in (``RLVC.fuse``). The classes (``classifier``) are then the structures fused into
-            one partition instead of regrown: the percepts that all structures class alike
-            form cells, merged by the mean of the structures' Q. It costs the others'
-            learning, without compound search, spread over the cores by ``vistask.parallel``
-            (so a script that makes the agent runs it under ``if __name__ ==
-            "__main__":``): 11 on the mountain car (16 vocabulary groups) return 0.940 of the
-            oracle's return (seeds 0-4). With SIFT on the car's whole percept, 11 returned
-            0.922 (0.908 acting on the fused classes) where one structure (64 groups) returned
-            0.871, in 1.15 times its run's time (seed 0, one pair of runs).
+            ``predict(deterministic=False)`` (in [0, 1], default 0.1).
+        n_envs: episodes collected side by side on the classes (>= 1, default 128).
+        max_keypoints: strongest SIFT keypoints kept per percept (0: all; default 24).
+        contrast_threshold: SIFT's detection threshold (> 0, default 0.005: low, so that dark
+            and smooth views still show keypoints).
+        compounds: make compound features (two features in a stable spatial relation) for
+            the most aliased classes where they split better than a single feature
+            (default False).
+        compaction: hold the classes in a BDD and merge classes with close values and
+            interchangeable greedy actions after each database's stages; when ``learn`` ends,
+            regrow the merged classes as one decision tree. True takes ``Compaction()``'s
+            settings; a ``Compaction`` sets them (default False: a tree that only splits).
         nearest_seen: when ``learn`` ends, keep the tested features of the percepts learned
-            on, and give each percept met later the class that most of the learned percepts
-            nearest to it (fewest tested features different) are in (``RLVC.remember``), so
-            that one feature a new percept shows or lacks by chance does not send it into
-            another class. On place navigation's held-out views it lowers the error of the
-            greedy action from 24.3% to 22.8% (tree, seeds 0-2); on the maze and the mountain
-            car it leaves the return as it is. Off by default: the results reported for the
-            other defaults were measured without it. False: the classes' tree (or BDD) alone.
-        vocabulary_groups: coarse groups of descriptors that the vocabulary's words are
-            fitted in (a vocabulary tree: a descriptor is matched to the words of its 3 nearest
-            groups). A word's group is its part in compound features: fewer groups make
-            coarser parts, so that a relation between two small details recurs although their
-            keypoints fall on many words. 16 on the mountain car (eleven structures, acting on the
-            fused classes, SIFT on the whole percept): 0.912 of the oracle's return on 1000
-            starts instead of 0.877, 0.908 on the 100 instead of 0.911 (seeds 0-4).
-        gamma: discount (default: the env's ``gamma`` attribute if it has one, else 0.99).
-        tensorboard_log: folder of TensorBoard runs (None: no logging).
-        seed: seeds the episodes, the exploration and the vocabulary.
+            on; a percept met later takes the class most of its nearest learned percepts are
+            in (default False; not with ``structures`` > 1).
+        vocabulary_groups: coarse groups of the vocabulary tree; a word's group is its part
+            in compound features, so fewer groups make coarser parts (>= 1, default 64).
+        gamma: discount in [0, 1) (default: the env's ``gamma`` attribute, else 0.99).
+        tensorboard_log: folder of TensorBoard runs (None, the default: no logging).
+        seed: seeds the episodes, the exploration and the vocabulary (default 0).
     """
 
     learner_class = RLVC
@@ -133,10 +121,7 @@ class RLVCAgent(VisualAgent):
         max_keypoints: int = 24,
         contrast_threshold: float = 0.005,
         compounds: bool = False,
-        compaction: bool = False,
-        compact_every: int | None = None,
-        compaction_tolerance: float = 0.02,
-        structures: int = 1,
+        compaction: bool | Compaction = False,
         nearest_seen: bool = False,
         vocabulary_groups: int = VOCABULARY_GROUPS,
         gamma: float | None = None,
@@ -158,35 +143,30 @@ class RLVCAgent(VisualAgent):
             tensorboard_log,
             seed,
         )
-        if compact_every is not None:
-            check_integers(compact_every=compact_every)
-            check_at_least(1, compact_every=compact_every)
-        if not 0 <= compaction_tolerance < 1:
+        check_bools(compounds=compounds, nearest_seen=nearest_seen)
+        if not isinstance(compaction, Compaction):
+            check_bools(compaction=compaction)
+            compaction = Compaction() if compaction else None
+        self.compounds, self.nearest_seen = bool(compounds), bool(nearest_seen)
+        self.compaction: Compaction | None = compaction
+        if self.structures > 1 and nearest_seen:
             raise ValueError(
-                f"compaction_tolerance must be in [0, 1), got {compaction_tolerance!r}"
+                f"Compaction(structures={self.structures}) acts on the structures' classes of "
+                "each percept, nearest_seen on the classes of the nearest percepts learned on: "
+                "pass one"
             )
-        self.compounds = bool(compounds)
-        self.compaction, self.compact_every = bool(compaction), compact_every
-        self.compaction_tolerance = float(compaction_tolerance)
-        check_integers(structures=structures)
-        check_at_least(1, structures=structures)
-        if structures > 1 and not compaction:
-            raise ValueError(
-                f"structures={structures} fuses class structures by compaction: pass "
-                "compaction=True, or structures=1"
+        if self.structures > 1:  # at once, not when learning ends and the structures start
+            check_not_importing_main(
+                f"RLVCAgent(compaction=Compaction(structures={self.structures}))"
             )
-        if structures > 1 and nearest_seen:
-            raise ValueError(
-                f"structures={structures} acts on the structures' classes of each percept, "
-                "nearest_seen on the classes of the nearest percepts learned on: pass one"
-            )
-        if structures > 1:  # at once, not when learning ends and the structures start
-            check_not_importing_main(f"RLVCAgent(structures={structures})")
-        self.structures = int(structures)
-        self.nearest_seen = bool(nearest_seen)
         check_integers(vocabulary_groups=vocabulary_groups)
         check_at_least(1, vocabulary_groups=vocabulary_groups)
         self.vocabulary_groups = int(vocabulary_groups)
+
+    @property
+    def structures(self) -> int:
+        """Class structures the agent acts on when ``learn`` ends (1 without compaction)."""
+        return self.compaction.structures if self.compaction else 1
 
     @property
     def rlvc(self) -> RLVC | None:
@@ -201,9 +181,9 @@ class RLVCAgent(VisualAgent):
             self.alpha,
             self.min_count,
             use_compounds=self.compounds,
-            compaction=self.compaction,
-            compact_every=self.compact_every,
-            compaction_tolerance=self.compaction_tolerance,
+            compaction=self.compaction is not None,
+            compact_every=self.compaction.every if self.compaction else None,
+            compaction_tolerance=self.compaction.tolerance if self.compaction else 0.02,
         )
 
     def _greedy(self, presence: torch.Tensor) -> np.ndarray:
@@ -218,7 +198,7 @@ class RLVCAgent(VisualAgent):
     def _end_databases(self) -> None:
         if self.structures > 1:
             self.rlvc.fuse(self.database, self.structures, self.seed)
-        elif self.compaction:
+        elif self.compaction is not None:
             self.rlvc.regrow(self.database)
         if self.nearest_seen:
             self.rlvc.remember(self.database)
@@ -226,13 +206,33 @@ class RLVCAgent(VisualAgent):
     def _extra_params(self) -> dict:
         return {
             "compounds": self.compounds,
-            "compaction": self.compaction,
-            "compact_every": self.compact_every,
-            "compaction_tolerance": self.compaction_tolerance,
-            "structures": self.structures,
+            "compaction": None if self.compaction is None else asdict(self.compaction),
             "nearest_seen": self.nearest_seen,
             "vocabulary_groups": self.vocabulary_groups,
         }
+
+    @classmethod
+    def _params_from_state(cls, params: dict) -> dict:
+        """Saved settings as constructor arguments; files that kept compaction's settings
+        beside a bool give them as a ``Compaction``."""
+        params = dict(params)
+        legacy = {
+            k: params.pop(k)
+            for k in ("compact_every", "compaction_tolerance", "structures")
+            if k in params
+        }
+        compaction = params.get("compaction")
+        if isinstance(compaction, dict):
+            params["compaction"] = Compaction(**compaction)
+        elif compaction:
+            params["compaction"] = Compaction(
+                legacy.get("compaction_tolerance", 0.02),
+                legacy.get("compact_every"),
+                legacy.get("structures", 1),
+            )
+        else:
+            params["compaction"] = False
+        return params
 
     @property
     def classifier(self) -> VisualClassifier:

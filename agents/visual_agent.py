@@ -13,6 +13,7 @@ import gymnasium as gym
 import numpy as np
 import torch
 
+from vistask.agents.progress import LearnProgress
 from vistask.agents.sb3_model import SB3Model
 from vistask.checks import check_at_least, check_integers
 from vistask.features import SiftExtractor, VisualFeatureExtractor
@@ -22,6 +23,7 @@ from vistask.saving import load_state, save_state
 
 MAX_BLOCKED = 2  # an epsilon-greedy episode ends after this many blocked moves in a row
 VOCABULARY_SAMPLE = 20_000  # descriptors that k-means fits the vocabulary on
+SIFT_CHUNK = 1024  # percepts of the first database extracted between two bar updates
 
 
 def space_state(space: gym.spaces.Discrete | gym.spaces.Box) -> dict:
@@ -129,6 +131,11 @@ class VisualAgent(SB3Model):
     def _end_databases(self) -> None:
         """Called once the stages of a ``learn`` call's last database have run."""
 
+    @classmethod
+    def _params_from_state(cls, params: dict) -> dict:
+        """The constructor arguments of a saved file's settings."""
+        return params
+
     # -- env --------------------------------------------------------------------------------
     def set_env(self, env: gym.Env) -> None:
         """Use ``env`` from now on; a learned agent checks that its spaces are the ones it
@@ -174,7 +181,8 @@ class VisualAgent(SB3Model):
                 learner's name).
             reset_num_timesteps: count interactions from 0 and start a new TensorBoard run
                 (False: go on counting, in the same run).
-            progress_bar: show progress bars of the stages.
+            progress_bar: show one bar over the call: interactions collected, with the phase,
+                stage, classes and the mean return of the latest database's episodes.
             checkpoint: a file to which the agent, its databases, its random generator and
                 what is left of this call are written after each database's stages.
                 ``load(checkpoint, env)`` then ``learn(total_timesteps -
@@ -194,34 +202,39 @@ class VisualAgent(SB3Model):
         else:
             sizes = [total_timesteps // self.databases] * self.databases
             sizes[0] += total_timesteps - sum(sizes)
-        while sizes:
-            callback.on_rollout_start()
-            self._add_database(sizes.pop(0))
-            callback.on_rollout_end()
-            stopped = False
+        with LearnProgress(total_timesteps, len(sizes), progress_bar) as progress:
+            for database, size in enumerate(sizes, 1):
+                callback.on_rollout_start()
+                progress.phase("collecting", database)
+                self._add_database(size, progress)
+                callback.on_rollout_end()
+                progress.phase("stages")
+                stopped = False
 
-            def on_stage(record: StageRecord) -> bool:
-                nonlocal stopped
-                stopped = not callback.on_step()  # before the dump: its records join the stage's
-                self._log_stage(record)
-                return not stopped
+                def on_stage(record: StageRecord) -> bool:
+                    nonlocal stopped
+                    stopped = not callback.on_step()  # before the dump: its records join it
+                    self._log_stage(record)
+                    progress.show(stage=record.stage, classes=record.classes)
+                    return not stopped
 
-            self.learner.learn(self.database, self.max_stages, progress_bar, on_stage)
-            if stopped:
-                break
-            if checkpoint is not None and sizes:
-                state = self._state()
-                state["resume"] = {
-                    "database": self.database.state_dict(),
-                    "rng": self._rng.bit_generator.state,
-                    "plan": {"sizes": sizes},
-                }
-                save_state(checkpoint, type(self).__name__, state)
-        self._end_databases()
+                self.learner.learn(self.database, self.max_stages, False, on_stage)
+                if stopped:
+                    break
+                if checkpoint is not None and database < len(sizes):
+                    state = self._state()
+                    state["resume"] = {
+                        "database": self.database.state_dict(),
+                        "rng": self._rng.bit_generator.state,
+                        "plan": {"sizes": sizes[database:]},
+                    }
+                    save_state(checkpoint, type(self).__name__, state)
+            progress.phase("ending")
+            self._end_databases()
         self._end_learning(callback)
         return self
 
-    def _add_database(self, size: int) -> None:
+    def _add_database(self, size: int, progress: LearnProgress) -> None:
         """Collect ``size`` interactions and add them to the database (the first database
         also fits the vocabulary and starts the learner)."""
         t0 = time.perf_counter()
@@ -234,8 +247,10 @@ class VisualAgent(SB3Model):
             seed=self._next_seed,
             max_blocked=MAX_BLOCKED if exploring else None,
             n_envs=n_envs,
+            on_step=progress.update,
         )
         self._next_seed += n_envs  # no two databases share an episode seed
+        self._log_returns(transitions.episode_returns, progress)
         t1 = time.perf_counter()
         detected, fitting = None, 0.0  # later databases: the cache holds what the policy saw
         if self.extractor is None:
@@ -243,8 +258,13 @@ class VisualAgent(SB3Model):
             keypoints = SiftExtractor(
                 self.contrast_threshold, self.max_keypoints, panel_widths=panel_widths
             )
-            detected = keypoints.batch(transitions.percepts)
+            progress.phase("SIFT")
+            percepts, detected = transitions.percepts, []
+            for start in range(0, len(percepts), SIFT_CHUNK):
+                detected += keypoints.batch(percepts[start : start + SIFT_CHUNK])
+                progress.show(sift=f"{len(detected)}/{len(percepts)}")
             t2 = time.perf_counter()
+            progress.phase("vocabulary")
             self.extractor = VisualFeatureExtractor.fit(
                 detected=detected,
                 n_words=self._vocabulary_size(detected),
@@ -256,6 +276,7 @@ class VisualAgent(SB3Model):
             )
             self.learner = self._new_learner()
             fitting = time.perf_counter() - t2
+        progress.phase("features")
         latest = InteractionDatabase.build(
             transitions, self.extractor, detected, self.learner.compounds
         )
@@ -266,6 +287,14 @@ class VisualAgent(SB3Model):
         self.timing["extract"] += time.perf_counter() - t1 - fitting
         self.timing["vocabulary"] += fitting
         self.num_timesteps += len(transitions)
+
+    def _log_returns(self, returns: np.ndarray, progress: LearnProgress) -> None:
+        """Mean return of the episodes a database's collection ended, in the bar and as SB3's
+        ``rollout/ep_rew_mean`` (logged with the next stage)."""
+        if len(returns):
+            progress.show(ep_return=float(returns.mean()))
+            self.logger.record("rollout/ep_rew_mean", float(returns.mean()))
+        self.logger.record("rollout/episodes", len(returns))
 
     def _vocabulary_size(self, detected: list) -> int:
         """``n_words``, or half the descriptors of a first database too small to fit them."""
@@ -372,7 +401,8 @@ class VisualAgent(SB3Model):
         """Load a saved agent; with ``env``, check that its spaces are the ones it learned on
         (it can then ``learn`` more)."""
         state = load_state(path, cls.__name__)
-        agent = cls(None, tensorboard_log=tensorboard_log, **state["params"])
+        params = cls._params_from_state(state["params"])
+        agent = cls(None, tensorboard_log=tensorboard_log, **params)
         dtype = np.dtype(state["observation_dtype"])
         agent.observation_space = gym.spaces.Box(0, 255, tuple(state["observation_shape"]), dtype)
         # RLVCAgent files that name the actions by their number and the learner "rlvc".

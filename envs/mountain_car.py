@@ -418,8 +418,8 @@ class VisualMountainCarEnv(gym.Env):
     Observation: (height, road_width + height, 3) uint8 RGB image (default (96, 192, 3)): the
     road window (left), which slides with the position p, and the gauge (right), whose needle
     shows the speed s. Actions: ``Discrete(2)``: push left (u = -4) or right (u = +4)
-    (``CAR_ACTION_NAMES``). Reward +1 at the top (p > 1 with |s| <= 3), -1 off the left edge
-    (p < -1) or over the speed limit (|s| > 3), both terminal; 0 otherwise. ``gamma`` = 0.95.
+    (``CAR_ACTION_NAMES``). Reward +1 at the top (p > 1 with ``|s| <= 3``), -1 off the left edge
+    (p < -1) or over the speed limit (``|s| > 3``), both terminal; 0 otherwise. ``gamma`` = 0.95.
     ``info["position"]`` holds the true state (p, s) (for oracles and plots only; agents must
     not use it). Starts are uniform in [-1, 1) x [-3, 3), or ``options={"state": (p, s)}``.
     ``panel_widths`` (road_width, height) tells feature extractors where the two views meet.

@@ -10,7 +10,7 @@ import torch
 from gymnasium.utils.env_checker import check_env
 from stable_baselines3.common.callbacks import CheckpointCallback, EvalCallback
 
-from vistask.agents import RLVCAgent, TabularQAgent
+from vistask.agents import Compaction, RLVCAgent, TabularQAgent
 from vistask.envs import MazeOracle, VisualMazeEnv, evaluate_policy, start_positions
 from vistask.experiments.tasks import MazeTask
 from vistask.experiments.train_rlvc import (
@@ -178,9 +178,15 @@ def test_unlearned_agent_explains_itself():
     with pytest.raises(ValueError, match=r"epsilon must be in \[0, 1\], got 2.0"):
         RLVCAgent(small_maze(), epsilon=2.0)
     with pytest.raises(ValueError, match="structures must be >= 1, got 0"):
-        RLVCAgent(small_maze(), compaction=True, structures=0)
+        RLVCAgent(small_maze(), compaction=Compaction(structures=0))
+    with pytest.raises(ValueError, match=r"tolerance must be in \[0, 1\), got 1.5"):
+        Compaction(tolerance=1.5)
     with pytest.raises(ValueError, match="nearest_seen on the classes of the nearest"):
-        RLVCAgent(small_maze(), compaction=True, structures=3, nearest_seen=True)
+        RLVCAgent(small_maze(), compaction=Compaction(structures=3), nearest_seen=True)
+    # Strings are not switches: "False" would be truthy.
+    for option in ("compounds", "compaction", "nearest_seen"):
+        with pytest.raises(TypeError, match=f"{option} must be True or False, got 'False'"):
+            RLVCAgent(small_maze(), **{option: "False"})
     with pytest.raises(ValueError, match="vocabulary_groups must be >= 1, got 0"):
         RLVCAgent(small_maze(), vocabulary_groups=0)
     with pytest.raises(ValueError, match="total_timesteps must be an integer >= databases"):
@@ -191,7 +197,7 @@ def test_fused_structures_refuse_a_worker_process_that_imports_an_unguarded_scri
     # As multiprocessing marks a new process while it imports its parent's main script.
     monkeypatch.setattr(multiprocessing.current_process(), "_inheriting", True, raising=False)
     with pytest.raises(RuntimeError, match='under `if __name__ == "__main__":`'):
-        RLVCAgent(small_maze(), compaction=True, structures=3)
+        RLVCAgent(small_maze(), compaction=Compaction(structures=3))
     RLVCAgent(small_maze(), compaction=True)  # one structure starts no process
 
 
@@ -333,7 +339,7 @@ def test_train_rlvc_passes_its_options_to_the_agent_and_keeps_them_for_resuming(
     summary = train_rlvc(**run, **options, vocabulary_groups=4)
     assert summary["compaction_tolerance"] == 0.01 and summary["vocabulary_groups"] == 4
     agent = RLVCAgent.load(tmp_path / "rlvc_agent.pt", gym.make("vistask/VisualMaze-v0", **SMALL))
-    assert agent.compaction and agent.compaction_tolerance == 0.01
+    assert agent.compaction == Compaction(tolerance=0.01)
     assert agent.vocabulary_groups == 4 and len(agent.extractor.groups.centres) == 4
     # A compound's parts are the groups of its words (or earlier compounds, above them).
     words = agent.extractor.n_features
@@ -357,8 +363,8 @@ def test_train_rlvc_fuses_class_structures_and_the_saved_agent_acts_on_them(tmp_
     assert evaluate_policy(env, agent_policy(agent), starts).mean == pytest.approx(
         summary["rlvc_return"]
     )
-    with pytest.raises(ValueError, match="compaction=True"):
-        RLVCAgent(env, structures=3)
+    with pytest.raises(ValueError, match="need compaction=True"):
+        train_rlvc(**run, structures=3)
 
 
 def test_a_classifier_with_compounds_round_trips_and_tests_them(small_agent, tmp_path):
@@ -407,3 +413,21 @@ def test_train_rlvc_on_the_car_scores_against_its_oracle_and_draws_it(tmp_path):
     assert loaded.extractor.keypoints.panel_widths == (96, 96)  # the road and the gauge alone
     with pytest.raises(ValueError, match="eval_starts must be >= 1, got 0"):
         train_rlvc(env_id, out=tmp_path / "none", eval_starts=0)
+
+
+def test_one_progress_bar_counts_the_interactions_of_the_whole_learn_call(capsys, tmp_path):
+    agent = RLVCAgent(small_maze(), n_words=256, seed=1, tensorboard_log=tmp_path)
+    agent.learn(2000, progress_bar=True)
+    screen = capsys.readouterr().err.replace("\r", "\n")
+    # One bar, to the call's end: it moves while collecting, then shows the stages' classes.
+    assert "2000/2000" in screen and screen.count("0/2000") >= 1
+    for shown in ("collecting", "SIFT", "stages", "db=4/4", "classes=", "ep_return="):
+        assert shown in screen, shown
+    assert f"classes={agent.rlvc.n_classes}" in screen
+    # The mean return of the episodes each database ended goes to TensorBoard as SB3's.
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    (run,) = [p for p in tmp_path.iterdir() if p.is_dir()]
+    events = EventAccumulator(str(run))
+    events.Reload()
+    assert "rollout/ep_rew_mean" in events.Tags()["scalars"]

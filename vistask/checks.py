@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import numbers
 
+import numpy as np
+
 
 def check_at_least(low: float, **values: float) -> None:
     """Raise ``ValueError`` unless every value is >= ``low`` (NaN is refused too)."""
@@ -30,3 +32,11 @@ def check_integers(**values: object) -> None:
     for name, value in values.items():
         if not isinstance(value, numbers.Integral) or isinstance(value, bool):
             raise TypeError(f"{name} must be an integer, got {value!r}")
+
+
+def check_bools(**values: object) -> None:
+    """Raise ``TypeError`` unless every value is a bool (NumPy's too): a string such as
+    ``"False"`` would otherwise switch an option on."""
+    for name, value in values.items():
+        if not isinstance(value, bool | np.bool_):
+            raise TypeError(f"{name} must be True or False, got {value!r}")

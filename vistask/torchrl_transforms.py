@@ -1,4 +1,4 @@
-"""torchrl ``Transform``s: image observation -> visual features, image -> visual class.
+"""torchrl transforms: image observation -> visual features, image -> visual class.
 
 The torchrl counterparts of ``vistask.wrappers.VisualFeatures`` and ``VisualClasses``, for a
 ``torchrl.envs.GymEnv`` whose Box image observation torchrl stores under ``"pixels"``.

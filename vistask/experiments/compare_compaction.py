@@ -22,7 +22,7 @@ import numpy as np
 from PIL import Image
 
 import vistask.envs  # noqa: F401  (registers the environments)
-from vistask.agents import RLVCAgent
+from vistask.agents import Compaction, RLVCAgent
 from vistask.envs.place_navigation import draw_world, view_sheet
 from vistask.experiments import statistics
 from vistask.experiments.tasks import PlaceTask, Task, task_for
@@ -62,14 +62,16 @@ def run_method(
     train_set: tuple[np.ndarray, np.ndarray] | None,
     interactions: int,
     seed: int,
+    compaction: Compaction,
     agent_kwargs: dict,
     out: Path,
     progress: bool,
 ) -> tuple[dict, list[dict]]:
-    """Learn one agent; returns its measures and its per-stage (classes, features) history."""
+    """Learn one agent (``compaction`` for the BDD's); returns its measures and its
+    per-stage (classes, features) history."""
     agent = RLVCAgent(
         env,
-        compaction=method == "bdd",
+        compaction=compaction if method == "bdd" else False,
         seed=seed,
         tensorboard_log=out / "tensorboard",
         **agent_kwargs,
@@ -168,8 +170,7 @@ def compare_compaction(
         seeds: one run per method and seed.
         methods: ``tree``, ``bdd`` or both.
         interactions: interactions per run.
-        compact_every, tolerance: the BDD agent's ``compact_every`` and
-            ``compaction_tolerance``.
+        compact_every, tolerance: the BDD agent's ``Compaction(every=, tolerance=)``.
         max_stages: both agents' stage cap (``RLVCAgent``'s ``max_stages``).
         contrast_threshold: both agents' SIFT detection threshold (default: the agent's).
         out: output folder (default ``runs/compare_compaction-<time>``); an existing one
@@ -191,11 +192,8 @@ def compare_compaction(
     # error against the test error tells a classifier that underfits from one that overfits.
     train_set = task.train_set() if hasattr(task, "train_set") else None
     measures = MEASURES + (("train_error",) if train_set is not None else ())
-    agent_kwargs = {
-        "compact_every": compact_every,
-        "compaction_tolerance": tolerance,
-        "max_stages": max_stages,
-    }
+    compaction = Compaction(tolerance=tolerance, every=compact_every)
+    agent_kwargs = {"max_stages": max_stages}
     if contrast_threshold is not None:
         agent_kwargs["contrast_threshold"] = contrast_threshold
     settings = {
@@ -223,6 +221,7 @@ def compare_compaction(
                     train_set,
                     interactions,
                     seed,
+                    compaction,
                     agent_kwargs,
                     out,
                     progress,

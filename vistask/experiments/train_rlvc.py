@@ -23,7 +23,7 @@ from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.evaluation import evaluate_policy as sb3_evaluate_policy
 
 import vistask.envs  # noqa: F401  (registers the environments)
-from vistask.agents import RLVCAgent
+from vistask.agents import Compaction, RLVCAgent
 from vistask.agents.visual_agent import VisualAgent
 from vistask.checks import check_at_least
 from vistask.envs.car_plots import percepts_at, plot_car_policy, plot_road, state_grid
@@ -303,12 +303,17 @@ def train_rlvc(
         The summary written to ``summary.json``.
     """
     check_at_least(1, eval_starts=eval_starts)
+    if compaction:
+        tolerance = Compaction.tolerance if compaction_tolerance is None else compaction_tolerance
+        compaction = Compaction(tolerance=tolerance, structures=structures)
+    elif compaction_tolerance is not None or structures != 1:
+        raise ValueError("compaction_tolerance and structures need compaction=True")
     start = time.perf_counter()
     out = run_dir("train_rlvc", out)
     settings = {"env_id": env_id, "env_kwargs": env_kwargs or {}, "interactions": interactions}
     if eval_starts != EVAL_STARTS:
         settings["eval_starts"] = eval_starts
-    options = {"compounds": compounds, "compaction": compaction}
+    options = {"compounds": compounds, "compaction": bool(compaction)}
     if compaction_tolerance is not None:
         options["compaction_tolerance"] = compaction_tolerance
     if structures != 1:  # runs saved without the option resume as before
@@ -318,7 +323,14 @@ def train_rlvc(
     check_same_settings(out / "settings.json", {**settings, "seed": seed, **options})
     env = gym.make(env_id, **(env_kwargs or {}))
     scorer = Scorer(env_id, env_kwargs, eval_starts)
-    agent = RLVCAgent(env, **options, seed=seed, tensorboard_log=out / "tensorboard")
+    agent = RLVCAgent(
+        env,
+        compounds=compounds,
+        compaction=compaction,
+        vocabulary_groups=vocabulary_groups,
+        seed=seed,
+        tensorboard_log=out / "tensorboard",
+    )
     evaluations = EvaluateEvery(scorer)
     agent = learn_resumable(agent, interactions, out, evaluations, progress)
     learned = time.perf_counter()
@@ -335,7 +347,7 @@ def train_rlvc(
         "selected_features": len(rlvc.structure.selected_features),
         "compound_features": len(rlvc.compound_features),
         "compounds_made": len(rlvc.compounds),
-        "compaction_tolerance": agent.compaction_tolerance if compaction else None,
+        "compaction_tolerance": agent.compaction.tolerance if agent.compaction else None,
         "structures": agent.structures,
         "vocabulary_size": agent.extractor.n_features,
         "vocabulary_groups": agent.vocabulary_groups,

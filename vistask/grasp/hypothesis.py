@@ -61,7 +61,7 @@ def feature_grasps(
 ) -> torch.Tensor:
     """Grasps suggested by pairs of similar-coloured, coplanar, parallel edge patches.
 
-    For a pair (i, j): the edges are parallel (|d_i . d_j| >= cos max_angle), d_j lies in the
+    For a pair (i, j): the edges are parallel (``|d_i . d_j| >= cos max_angle``), d_j lies in the
     plane spanned by d_i and p_j - p_i (coplanarity within ``max_angle``), and the distance
     across the edges fits the open gripper (``width_range``). The grasp closes across the
     edges (x = the part of p_j - p_i orthogonal to d_i) and approaches along the plane normal,

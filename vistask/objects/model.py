@@ -77,10 +77,12 @@ def appearance_descriptors(colors: Tensor) -> Tensor:
     changes little.
 
     A brighter or tinted lamp multiplies each channel of both sides by about the same gain:
+
     - (N, 3) per channel, the darker side's share of the pair: unchanged by any gain per
       channel;
     - (N, 3) the brighter side's colour over the pair's mean brightness: unchanged by one gain
       for all channels, and it keeps the colour that tells lookalikes apart.
+
     Both parts span about [0, 1], so that k-means and the class radii weigh them alike
     (``docs/results.md``, "Pose estimation", measures them against raw colours).
 

@@ -58,7 +58,8 @@ class Transitions:
     """Raw interactions as collected: percepts (M images), and per interaction i the indices
     ``obs[i]``, ``next_obs[i]`` into ``percepts``, ``actions``, ``rewards``, ``terminal``.
     ``positions`` (M, ...) keeps ``info["position"]`` when the env reports it (plots and the
-    true-grid ceiling only; the learner never reads it)."""
+    true-grid ceiling only; the learner never reads it); ``episode_returns`` the undiscounted
+    return of each episode that ended during collection."""
 
     percepts: list[np.ndarray]
     obs: np.ndarray
@@ -67,6 +68,7 @@ class Transitions:
     next_obs: np.ndarray
     terminal: np.ndarray
     positions: np.ndarray | None = None
+    episode_returns: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.actions)
@@ -122,6 +124,7 @@ def collect(
     seed: int = 0,
     max_blocked: int | None = None,
     n_envs: int = 1,
+    on_step: Callable[[int], None] | None = None,
 ) -> Transitions:
     """Collect ``n`` interactions over episodes from the env's random starts.
 
@@ -138,6 +141,8 @@ def collect(
             with copies of one interaction (None: never).
         n_envs: episodes run side by side on copies of ``env`` (``vector_copies``), so that the
             policy sees batches of ``n_envs`` views.
+        on_step: called with the number of interactions added after each step of the copies
+            (a progress bar's ``update``).
     """
     continuous = isinstance(env.action_space, gym.spaces.Box)
     check_image_env(env, continuous)
@@ -162,12 +167,14 @@ def collect(
     views, infos = envs.reset(seed=[seed + i for i in range(n_envs)])
     current = [add(views[i], infos, i) for i in range(n_envs)]
     blocked = np.zeros(n_envs, dtype=int)
+    returns, episode_returns = np.zeros(n_envs), []
     while len(act) < n:
         actions = np.asarray(policy(views, rng))
         obs, rewards, terminated, truncated, infos = envs.step(actions)
         # A blocked move shows the same view again: store (and later extract) it once.
         same = (obs == views).reshape(n_envs, -1).all(axis=1)
-        for i in range(min(n_envs, n - len(act))):  # the last round may need fewer
+        added = min(n_envs, n - len(act))  # the last round may need fewer
+        for i in range(added):
             following = current[i] if same[i] else add(obs[i], infos, i)
             obs_i.append(current[i])
             act.append(actions[i])
@@ -175,8 +182,13 @@ def collect(
             next_i.append(following)
             term.append(bool(terminated[i]))
             current[i] = following
+            returns[i] += float(rewards[i])
+        if on_step is not None:
+            on_step(added)
         blocked = np.where(same, blocked + 1, 0)
         ended = terminated | truncated | (blocked == max_blocked)
+        episode_returns.extend(returns[:added][ended[:added]])
+        returns[ended] = 0.0
         views = obs
         if ended.any() and len(act) < n:
             views, infos = envs.reset(options={"reset_mask": ended})
@@ -192,6 +204,7 @@ def collect(
         np.asarray(next_i),
         np.asarray(term, dtype=bool),
         np.stack(positions) if len(positions) == len(percepts) else None,
+        np.asarray(episode_returns, dtype=np.float64),
     )
 
 

@@ -11,7 +11,7 @@ Conventions, used throughout the project:
 - A point of R^3 x S^2 is a (..., 6) tensor [t, v] with v a unit direction and v ~ -v.
 - Densities are weighted particles with one bandwidth (sigma_t, sigma_r). The kernel is a
   position part (Gaussian with std sigma_t, or triangular max(0, 1 - d / (2 sigma_t))) times
-  exp(kappa (|u . u_i| - 1)), kappa = 1 / (1 - cos(sigma_r / 2)) for quaternions and
+  ``exp(kappa (|u . u_i| - 1))``, kappa = 1 / (1 - cos(sigma_r / 2)) for quaternions and
   1 / (1 - cos sigma_r) for axial directions, so both are about exp(-angle^2 / sigma_r^2).
   Normalised densities integrate to 1 over R^3 x SO(3) with SO(3) of volume pi^2 (the
   quaternion half-sphere), or over R^3 x S^2 / {v ~ -v} of area 2 pi.

@@ -502,7 +502,7 @@ class SE3KDE(KernelDensity):
     """Kernel density on SE(3): particles are (N, 7) poses [t, qx, qy, qz, qw].
 
     Kernel: position (Gaussian, or triangular with support 2 sigma_t) times
-    exp(kappa (|q . q_i| - 1)) with kappa = 1 / (1 - cos(sigma_r / 2)) (nuklei).
+    ``exp(kappa (|q . q_i| - 1))`` with kappa = 1 / (1 - cos(sigma_r / 2)) (nuklei).
     See ``KernelDensity`` for the arguments.
     """
 

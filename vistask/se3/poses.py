@@ -76,7 +76,7 @@ def _broadcast_batch(*tensors: torch.Tensor) -> list[torch.Tensor]:
 
 
 def identity_poses(*batch: int, dtype: torch.dtype = torch.float32, device=None) -> torch.Tensor:
-    """Identity poses of shape (*batch, 7)."""
+    """Identity poses of shape ``(*batch, 7)``."""
     out = torch.zeros(*batch, 7, dtype=dtype, device=device)
     out[..., 6] = 1.0
     return out

@@ -41,7 +41,7 @@ def project_se3_to_r3s2(poses: torch.Tensor, axis: int = 2) -> torch.Tensor:
 class R3S2KDE(KernelDensity):
     """Kernel density on R^3 x S^2 with axial directions: particles are (N, 6) [t, v].
 
-    Kernel: position (Gaussian or triangular) times exp(kappa (|v . v_i| - 1)) with
+    Kernel: position (Gaussian or triangular) times ``exp(kappa (|v . v_i| - 1))`` with
     kappa = 1 / (1 - cos sigma_r); normalised over R^3 x S^2 / {v ~ -v} (area 2 pi). Sampling
     uses Wood's algorithm on S^2 with a random sign. See ``KernelDensity`` for the arguments.
     """
