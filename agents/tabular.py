@@ -11,6 +11,7 @@ import torch
 from tqdm.auto import tqdm
 
 from vistask.agents.sb3_model import SB3Model
+from vistask.checks import check_at_least, check_integers
 from vistask.saving import load_state, save_state
 
 
@@ -58,11 +59,18 @@ class TabularQAgent(SB3Model):
             gamma = gamma if gamma is not None else getattr(env.unwrapped, "gamma", 0.99)
         if n_states is None or n_actions is None:
             raise ValueError("pass an env, or n_states and n_actions")
-        if not 0 < learning_rate <= 1 or not 0 <= epsilon <= 1:
-            raise ValueError("learning_rate must be in (0, 1] and epsilon in [0, 1]")
+        if not 0 < learning_rate <= 1:
+            raise ValueError(f"learning_rate must be in (0, 1], got {learning_rate!r}")
+        if not 0 <= epsilon <= 1:
+            raise ValueError(f"epsilon must be in [0, 1], got {epsilon!r}")
+        gamma = 0.99 if gamma is None else gamma
+        if not 0 <= gamma < 1:
+            raise ValueError(f"gamma must be in [0, 1), got {gamma!r}")
+        check_integers(seed=seed)
+        check_at_least(0, seed=seed)
         self.env, self.tensorboard_log = env, tensorboard_log
         self.learning_rate, self.epsilon, self.seed = learning_rate, epsilon, seed
-        self.gamma = 0.99 if gamma is None else float(gamma)
+        self.gamma = float(gamma)
         self.q = np.full((n_states, n_actions), float(initial_q))
         self.num_timesteps = 0
         self._seeded = False

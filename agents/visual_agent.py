@@ -4,6 +4,7 @@ callbacks and TensorBoard, ``predict`` on one image or a batch, ``save`` and ``l
 
 from __future__ import annotations
 
+import json
 import time
 import warnings
 from pathlib import Path
@@ -24,6 +25,11 @@ from vistask.saving import load_state, save_state
 MAX_BLOCKED = 2  # an epsilon-greedy episode ends after this many blocked moves in a row
 VOCABULARY_SAMPLE = 20_000  # descriptors that k-means fits the vocabulary on
 SIFT_CHUNK = 1024  # percepts of the first database extracted between two bar updates
+
+
+def spec_kwargs(spec: gym.envs.registration.EnvSpec) -> dict:
+    """An env spec's ``gym.make`` arguments as plain JSON values (others by their repr)."""
+    return json.loads(json.dumps(spec.kwargs, default=repr, sort_keys=True))
 
 
 def space_state(space: gym.spaces.Discrete | gym.spaces.Box) -> dict:
@@ -75,8 +81,10 @@ class VisualAgent(SB3Model):
             "max_stages": max_stages,
             "n_envs": n_envs,
             "max_keypoints": max_keypoints,
+            "seed": seed,
         }
         check_integers(**counts)
+        check_at_least(0, seed=seed)
         check_at_least(2, n_words=n_words, min_count=min_count)
         check_at_least(1, databases=databases, max_stages=max_stages, n_envs=n_envs)
         check_at_least(0, max_keypoints=max_keypoints)
@@ -101,6 +109,7 @@ class VisualAgent(SB3Model):
         self.observation_space: gym.spaces.Box | None = None
         self.action_space: gym.spaces.Discrete | gym.spaces.Box | None = None
         self.env_id: str | None = None
+        self.env_kwargs: dict | None = None  # the gym.make arguments of env_id
         if env is not None:
             self.set_env(env)
         self.extractor: VisualFeatureExtractor | None = None
@@ -143,9 +152,26 @@ class VisualAgent(SB3Model):
         check_image_env(env, self.continuous)
         if self.observation_space is not None:
             self._check_spaces(env)
+            self._check_same_env(env)
         self.env, self._vec_env = env, None
         self.observation_space, self.action_space = env.observation_space, env.action_space
-        self.env_id = self.env_id or (env.spec.id if env.spec is not None else None)
+        if self.env_id is None and env.spec is not None:
+            self.env_id, self.env_kwargs = env.spec.id, spec_kwargs(env.spec)
+
+    def _check_same_env(self, env: gym.Env) -> None:
+        """Another env id or other ``gym.make`` arguments than the agent learned on: an error
+        when its databases would mix the two (a checkpoint), else a warning."""
+        if env.spec is None or self.env_id is None or self.env_kwargs is None:
+            return  # an env made without gym.make, or a file saved without its arguments
+        if (env.spec.id, spec_kwargs(env.spec)) == (self.env_id, self.env_kwargs):
+            return
+        message = (
+            f"the agent learned on {self.env_id} with {self.env_kwargs}; this env is "
+            f"{env.spec.id} with {spec_kwargs(env.spec)}"
+        )
+        if self.database is not None:
+            raise ValueError(f"{message}: learning on would mix their interactions")
+        warnings.warn(f"{message}: acting on another env than it learned on", stacklevel=3)
 
     def _check_spaces(self, env: gym.Env) -> None:
         space = env.observation_space
@@ -232,7 +258,20 @@ class VisualAgent(SB3Model):
             progress.phase("ending")
             self._end_databases()
         self._end_learning(callback)
+        if not self.rewards_seen:
+            warnings.warn(
+                f"no reward in the {len(self.database)} interactions learned on: every class "
+                "has the same value, so the greedy policy is arbitrary; collect more "
+                "interactions (total_timesteps) or check the env's rewards",
+                stacklevel=2,
+            )
         return self
+
+    @property
+    def rewards_seen(self) -> int:
+        """Interactions with a nonzero reward in the database learned on (0 before
+        learning)."""
+        return 0 if self.database is None else int((self.database.rewards != 0).sum())
 
     def _add_database(self, size: int, progress: LearnProgress) -> None:
         """Collect ``size`` interactions and add them to the database (the first database
@@ -344,6 +383,9 @@ class VisualAgent(SB3Model):
         None). Greedy on the learned classes; ``deterministic=False`` explores (see the
         class). ``state`` and ``episode_start`` are unused (the policy has no memory)."""
         self._check_learned()
+        if isinstance(observation, list | tuple):  # np.asarray would cast odd images silently
+            for image in observation:
+                self._check_dtype(np.asarray(image))
         images = np.asarray(observation)
         shape = tuple(self.observation_space.shape)
         single = images.shape == shape
@@ -352,16 +394,19 @@ class VisualAgent(SB3Model):
                 f"observation must be one image of shape {shape} or a batch (N, *{shape}), "
                 f"got shape {images.shape}"
             )
-        if images.dtype != self.observation_space.dtype:
-            raise TypeError(
-                f"observation must have dtype {self.observation_space.dtype}, got {images.dtype}"
-            )
+        self._check_dtype(images)
         presence = self._presence(images[None] if single else images)
         actions = self._greedy(presence) if deterministic else self._explore(presence, self._rng)
         if isinstance(self.action_space, gym.spaces.Box):
             actions = actions.astype(self.action_space.dtype)
             return (actions[0] if single else actions), None
         return (int(actions[0]) if single else actions), None
+
+    def _check_dtype(self, images: np.ndarray) -> None:
+        if images.dtype != self.observation_space.dtype:
+            raise TypeError(
+                f"observation must have dtype {self.observation_space.dtype}, got {images.dtype}"
+            )
 
     # -- persistence ------------------------------------------------------------------------
     def save(self, path: str | Path) -> None:
@@ -390,6 +435,7 @@ class VisualAgent(SB3Model):
             "observation_dtype": str(self.observation_space.dtype),
             "action_space": space_state(self.action_space),
             "env_id": self.env_id,
+            "env_kwargs": self.env_kwargs,
             "extractor": self.extractor.state_dict(),
             "learner": self.learner.state_dict(),
             "num_timesteps": self.num_timesteps,
@@ -410,7 +456,7 @@ class VisualAgent(SB3Model):
             agent.action_space = space_from_state(state["action_space"])
         else:
             agent.action_space = gym.spaces.Discrete(state["n_actions"])
-        agent.env_id = state["env_id"]
+        agent.env_id, agent.env_kwargs = state["env_id"], state.get("env_kwargs")
         agent.extractor = VisualFeatureExtractor.from_state_dict(state["extractor"])
         learner = state["learner"] if "learner" in state else state["rlvc"]
         agent.learner = cls.learner_class.from_state_dict(learner)

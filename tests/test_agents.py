@@ -2,6 +2,7 @@
 
 import json
 import multiprocessing
+import warnings
 
 import gymnasium as gym
 import numpy as np
@@ -431,3 +432,40 @@ def test_one_progress_bar_counts_the_interactions_of_the_whole_learn_call(capsys
     events = EventAccumulator(str(run))
     events.Reload()
     assert "rollout/ep_rew_mean" in events.Tags()["scalars"]
+
+
+def test_learning_without_a_single_reward_says_so():
+    env = gym.wrappers.TransformReward(small_maze(), lambda reward: 0.0)
+    agent = RLVCAgent(env, n_words=256, databases=1, seed=0)
+    with pytest.warns(UserWarning, match="no reward in the 1000 interactions learned on"):
+        agent.learn(1000)
+    assert agent.rewards_seen == 0
+    assert RLVCAgent(small_maze(), n_words=256, databases=1).learn(1000).rewards_seen > 0
+
+
+def test_agents_refuse_seeds_discounts_and_images_they_would_coerce(small_agent):
+    with pytest.raises(TypeError, match=r"seed must be an integer, got 1\.7"):
+        RLVCAgent(small_maze(), seed=1.7)
+    with pytest.raises(ValueError, match="seed must be >= 0, got -1"):
+        RLVCAgent(small_maze(), seed=-1)
+    frozen_lake = gym.make("FrozenLake-v1")
+    for gamma in (1.5, float("nan")):
+        with pytest.raises(ValueError, match="gamma must be in"):
+            TabularQAgent(frozen_lake, gamma=gamma)
+    image = np.zeros((64, 64, 3), np.uint8)
+    with pytest.raises(TypeError, match="dtype uint8, got bool"):
+        small_agent.predict([image, image.astype(bool)])
+    assert len(small_agent.predict([image, image])[0]) == 2
+
+
+def test_an_agent_knows_the_env_arguments_it_learned_on(small_agent, tmp_path):
+    other_layout = gym.make("vistask/VisualMaze-v0", **{**SMALL, "step": 0.25})
+    with pytest.raises(ValueError, match="learning on would mix their interactions"):
+        small_agent.set_env(other_layout)  # it holds the databases it learned from
+    small_agent.save(tmp_path / "agent.pt")
+    with pytest.warns(UserWarning, match="acting on another env than it learned on"):
+        RLVCAgent.load(tmp_path / "agent.pt", env=other_layout)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        agent = RLVCAgent.load(tmp_path / "agent.pt", env=small_maze())
+    assert agent.env_kwargs == small_agent.env_kwargs and agent.env_kwargs["step"] == 0.2

@@ -135,6 +135,7 @@ def train_rljc(
         "selected_features": len(tree.selected_features),
         "vocabulary_size": agent.extractor.n_features,
         "interactions": agent.num_timesteps,
+        "rewards_seen": agent.rewards_seen,
         "evaluations": evaluations.evaluations,
     }
     task = scorer.task

@@ -352,6 +352,7 @@ def train_rlvc(
         "vocabulary_size": agent.extractor.n_features,
         "vocabulary_groups": agent.vocabulary_groups,
         "interactions": agent.num_timesteps,
+        "rewards_seen": agent.rewards_seen,
         "eval_starts": eval_starts,
         "evaluations": evaluations.evaluations,
     }
