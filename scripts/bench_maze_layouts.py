@@ -7,7 +7,7 @@ python scripts/bench_maze_layouts.py --workers 2     # two runs side by side
 
 import argparse
 
-from vistask.cli import positive_int
+from vistask.cli import non_negative_int, positive_int
 from vistask.experiments.maze_layouts import bench_maze_layouts
 
 
@@ -16,7 +16,7 @@ def main() -> None:
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
     parser.add_argument("--layouts", nargs="+", type=int, default=list(range(1, 11)))
-    parser.add_argument("--seed", type=int, default=0, help="the agent's seed")
+    parser.add_argument("--seed", type=non_negative_int, default=0, help="the agent's seed")
     parser.add_argument("--out", default=None, help="default runs/bench_maze_layouts-<time>")
     parser.add_argument("--workers", type=positive_int, default=1, help="runs side by side")
     parser.add_argument("--address", default=None, help="Ray cluster (default: RAY_ADDRESS)")

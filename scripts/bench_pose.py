@@ -44,7 +44,9 @@ def main() -> None:
         help="scenes per object and condition",
     )
     parser.add_argument("--quick", action="store_true", help="2 scenes per object and condition")
-    parser.add_argument("--seed", type=int, default=bench_defaults["seed"], help="first scene seed")
+    parser.add_argument(
+        "--seed", type=non_negative_int, default=bench_defaults["seed"], help="first scene seed"
+    )
     parser.add_argument("--particles", type=positive_int, default=nbp_defaults["n_particles"])
     parser.add_argument(
         "--refine-iters",

@@ -5,9 +5,8 @@ python scripts/bench_rljc.py --seeds 2 --interactions 10000
 """
 
 import argparse
-import json
 
-from vistask.cli import positive_int
+from vistask.cli import json_object, positive_int
 from vistask.experiments.bench_rljc import bench_rljc
 
 
@@ -17,7 +16,7 @@ def main() -> None:
     )
     parser.add_argument("--seeds", type=positive_int, default=5, help="seeds 0..N-1")
     parser.add_argument("--interactions", type=positive_int, default=60_000)
-    parser.add_argument("--env-kwargs", type=json.loads, default={}, help="JSON dict for gym.make")
+    parser.add_argument("--env-kwargs", type=json_object, default={}, help="JSON dict for gym.make")
     parser.add_argument("--out", default=None, help="default runs/bench_rljc-<time>")
     args = parser.parse_args()
     bench_rljc(args.seeds, args.interactions, args.env_kwargs, args.out)

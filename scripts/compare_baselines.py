@@ -18,12 +18,11 @@ installed, and --address local to a Ray started on this machine.
 """
 
 import argparse
-import json
 import sys
 
 import torch
 
-from vistask.cli import interrupt_on_sigterm, positive_int
+from vistask.cli import interrupt_on_sigterm, json_object, non_negative_int, positive_int
 from vistask.experiments.compare import DEFAULT_BUDGETS, METHODS, Comparison, compare
 
 
@@ -32,7 +31,7 @@ def main() -> None:
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
     parser.add_argument("--env", default="vistask/VisualMaze-v0")
-    parser.add_argument("--env-kwargs", type=json.loads, default={}, help="JSON dict for gym.make")
+    parser.add_argument("--env-kwargs", type=json_object, default={}, help="JSON dict for gym.make")
     parser.add_argument("--methods", nargs="+", choices=METHODS, default=None)
     parser.add_argument(
         "--budgets", nargs="+", type=positive_int, default=None, help=f"{DEFAULT_BUDGETS}"
@@ -40,7 +39,7 @@ def main() -> None:
     parser.add_argument(
         "--seeds", type=positive_int, default=None, help="number of seeds (default 5)"
     )
-    parser.add_argument("--seed0", type=int, default=0, help="first seed")
+    parser.add_argument("--seed0", type=non_negative_int, default=0, help="first seed")
     parser.add_argument("--eval-starts", type=positive_int, default=None, help="default 100")
     parser.add_argument(
         "--grid",

@@ -9,9 +9,8 @@ python scripts/compare_compaction.py --env vistask/PlaceNavigation-v0 \
 """
 
 import argparse
-import json
 
-from vistask.cli import positive_int, unit_fraction
+from vistask.cli import json_object, non_negative_int, positive_int, unit_fraction
 from vistask.experiments.compare_compaction import METHODS, compare_compaction
 
 
@@ -20,8 +19,8 @@ def main() -> None:
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
     parser.add_argument("--env", default="vistask/VisualMaze-v0", help="Gymnasium env id")
-    parser.add_argument("--env-kwargs", type=json.loads, default={}, help="JSON dict for gym.make")
-    parser.add_argument("--seeds", type=int, nargs="+", default=[0])
+    parser.add_argument("--env-kwargs", type=json_object, default={}, help="JSON dict for gym.make")
+    parser.add_argument("--seeds", type=non_negative_int, nargs="+", default=[0])
     parser.add_argument("--methods", nargs="+", choices=METHODS, default=list(METHODS))
     parser.add_argument("--interactions", type=positive_int, default=30_000)
     parser.add_argument(

@@ -14,13 +14,19 @@ python scripts/train_rlvc.py --resume runs/s3      # go on after a stop (Ctrl-C,
 """
 
 import argparse
-import json
 from pathlib import Path
 
 import gymnasium as gym
 
 import vistask.envs  # noqa: F401  (registers the environments)
-from vistask.cli import interrupt_on_sigterm, positive_int, stopped_run_settings, unit_fraction
+from vistask.cli import (
+    interrupt_on_sigterm,
+    json_object,
+    non_negative_int,
+    positive_int,
+    stopped_run_settings,
+    unit_fraction,
+)
 from vistask.experiments.train_rljc import train_rljc
 from vistask.experiments.train_rlvc import train_rlvc
 from vistask.features.vocabulary import VOCABULARY_GROUPS
@@ -31,14 +37,14 @@ def main() -> None:
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
     parser.add_argument("--env", default="vistask/VisualMaze-v0", help="Gymnasium env id")
-    parser.add_argument("--env-kwargs", type=json.loads, default={}, help="JSON dict for gym.make")
+    parser.add_argument("--env-kwargs", type=json_object, default={}, help="JSON dict for gym.make")
     parser.add_argument(
         "--interactions",
         type=positive_int,
         default=None,
         help="default 40,000 for RLVC, 60,000 for RLJC (the joint space needs more)",
     )
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--seed", type=non_negative_int, default=0)
     parser.add_argument(
         "--out", default=None, help="default runs/train_rlvc-<time> (RLJC: train_rljc-<time>)"
     )

@@ -3,6 +3,7 @@ wrong, before any work starts."""
 
 from __future__ import annotations
 
+import json
 import runpy
 import sys
 from pathlib import Path
@@ -17,6 +18,7 @@ from vistask.agents import TabularQAgent
 from vistask.grasp import GraspLearner, demonstration_density
 from vistask.objects import ObjectModel
 from vistask.rlvc import RLVC
+from vistask.runs import check_same_settings, read_records, run_dir
 from vistask.se3 import SE3KDE, identity_poses, random_poses
 from vistask.vision import Patches
 
@@ -83,6 +85,10 @@ def test_tabular_hyperparameters_out_of_range_are_refused(kwargs, name):
         ("compare_baselines.py", ["--seeds", "0"], "--seeds"),
         ("compare_baselines.py", ["--workers", "0"], "--workers"),
         ("bench_pose.py", ["--pictures", "-2"], "--pictures"),
+        ("train_rlvc.py", ["--seed", "-1"], "--seed"),
+        ("train_rlvc.py", ["--env-kwargs", "[1,2]"], "--env-kwargs"),
+        ("compare_baselines.py", ["--env-kwargs", "{bad"], "--env-kwargs"),
+        ("compare_compaction.py", ["--seeds", "-3"], "--seeds"),
     ],
 )
 def test_scripts_refuse_bad_values_before_any_work(script, args, name, monkeypatch, capsys):
@@ -99,3 +105,26 @@ def test_a_float32_density_is_exact_at_its_kernel_centre_for_narrow_kernels():
     points = random_poses(2, generator=torch.Generator().manual_seed(1))
     density = SE3KDE(points, sigma_t=0.01, sigma_r=1e-4)
     torch.testing.assert_close(density.evaluate(points), torch.full((2,), 0.5), rtol=1e-5, atol=0)
+
+
+def test_a_run_folder_records_its_script_and_refuses_another(tmp_path, monkeypatch):
+    monkeypatch.setattr(sys, "argv", ["train_rlvc.py", "--seed", "3"])
+    run_dir("train_rlvc", tmp_path)
+    run_dir("train_rlvc", tmp_path)  # a resumed run: the same script
+    run = json.loads((tmp_path / "run.json").read_text())
+    assert run == {"script": "train_rlvc", "commands": [["train_rlvc.py", "--seed", "3"]] * 2}
+    with pytest.raises(ValueError, match="holds a run of 'train_rlvc', not of 'compare'"):
+        run_dir("compare", tmp_path)
+
+
+def test_garbage_in_a_run_folder_is_named(tmp_path, monkeypatch, capsys):
+    (tmp_path / "settings.json").write_text("{not json")
+    with pytest.raises(ValueError, match=r"settings.json is not valid JSON"):
+        check_same_settings(tmp_path / "settings.json", {"seed": 0})
+    (tmp_path / "runs.jsonl").write_text('{"a": 1}\n{"b": \n')
+    with pytest.raises(ValueError, match=r"runs.jsonl, line 2, is not valid JSON"):
+        read_records(tmp_path / "runs.jsonl")
+    monkeypatch.setattr(sys, "argv", ["train_rlvc.py", "--resume", str(tmp_path)])
+    with pytest.raises(SystemExit):
+        runpy.run_path(str(ROOT / "scripts" / "train_rlvc.py"), run_name="__main__")
+    assert "settings.json is not valid JSON" in capsys.readouterr().err

@@ -43,6 +43,19 @@ def probability(text: str) -> float:
     return _checked(text, float, lambda v: 0 <= v <= 1, "in [0, 1]")
 
 
+def json_object(text: str) -> dict:
+    """A JSON object (``--env-kwargs '{"layout_seed": 7}'``)."""
+    try:
+        value = json.loads(text)
+    except json.JSONDecodeError as error:
+        raise argparse.ArgumentTypeError(f"must be a JSON object, got {text} ({error})") from None
+    if not isinstance(value, dict):
+        raise argparse.ArgumentTypeError(
+            f"must be a JSON object such as '{{\"a\": 1}}', got {text}"
+        )
+    return value
+
+
 def interrupt_on_sigterm() -> None:
     """Turn SIGTERM (a scheduler or ``kill`` stopping the run) into KeyboardInterrupt, so that
     a stopped run closes its simulators and workers as Ctrl-C does; its checkpoints are
@@ -60,4 +73,10 @@ def stopped_run_settings(parser: argparse.ArgumentParser, folder: Path, name: st
     path = Path(folder) / name
     if not path.is_file():
         parser.error(f"argument --resume: {folder} holds no stopped run (no {name})")
-    return json.loads(path.read_text())
+    try:
+        settings = json.loads(path.read_text())
+    except json.JSONDecodeError as error:
+        parser.error(f"argument --resume: {path} is not valid JSON ({error})")
+    if not isinstance(settings, dict):
+        parser.error(f"argument --resume: {path} holds no settings (not a JSON object)")
+    return settings

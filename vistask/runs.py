@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import sys
 import time
 from pathlib import Path
 from typing import Any
@@ -12,10 +13,32 @@ import numpy as np
 
 
 def run_dir(script: str, out: str | Path | None = None) -> Path:
-    """``out`` if given, else ``runs/<script>-<YYYYmmdd-HHMMSS>/``; created."""
+    """``out`` if given, else ``runs/<script>-<YYYYmmdd-HHMMSS>/``; created.
+
+    The folder's ``run.json`` records the script that made it and the command line of every
+    call on it; a folder that another script made is refused, so that no run overwrites
+    another's results.
+    """
     path = Path(out) if out else Path("runs") / f"{script}-{time.strftime('%Y%m%d-%H%M%S')}"
     path.mkdir(parents=True, exist_ok=True)
+    record = path / "run.json"
+    run = read_json(record) if record.exists() else {"script": script, "commands": []}
+    if run.get("script") != script:
+        raise ValueError(
+            f"{path} holds a run of {run.get('script')!r}, not of {script!r}: pick another "
+            "output folder"
+        )
+    run["commands"].append([Path(sys.argv[0]).name, *sys.argv[1:]])
+    record.write_text(json.dumps(run, indent=2) + "\n")
     return path
+
+
+def read_json(path: str | Path) -> Any:
+    """The JSON value in ``path``; a file that is not JSON gives an error naming it."""
+    try:
+        return json.loads(Path(path).read_text())
+    except json.JSONDecodeError as error:
+        raise ValueError(f"{path} is not valid JSON ({error}): remove or repair it") from None
 
 
 def tensorboard(path: str | Path):
@@ -60,7 +83,15 @@ def read_records(path: str | Path) -> list[dict]:
     path = Path(path)
     if not path.exists():
         return []
-    return [json.loads(line) for line in path.read_text().splitlines() if line]
+    records = []
+    for number, line in enumerate(path.read_text().splitlines(), 1):
+        try:
+            records.extend([json.loads(line)] if line else [])
+        except json.JSONDecodeError:
+            raise ValueError(
+                f"{path}, line {number}, is not valid JSON: remove or repair it"
+            ) from None
+    return records
 
 
 def print_table(rows: dict[str, Any], title: str = "") -> None:
@@ -81,7 +112,7 @@ def check_same_settings(path: str | Path, settings: dict) -> None:
     if not path.exists():
         path.write_text(json.dumps(settings, indent=2) + "\n")
         return
-    before = json.loads(path.read_text())
+    before = read_json(path)
     if before != settings:
         changed = sorted(
             k for k in settings.keys() | before.keys() if before.get(k) != settings.get(k)
