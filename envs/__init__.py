@@ -25,17 +25,11 @@ from vistask.envs.mountain_car import (
     VisualMountainCarVectorEnv,
     hill_step,
 )
-from vistask.envs.place_navigation import (
-    PLACE_ACTION_NAMES,
-    Jitter,
-    PlaceNavigationEnv,
-    PlaceNavigationVectorEnv,
-    PlaceOracle,
-    PlaceWorld,
-    draw_world,
-    evaluation_starts,
-    view_sheet,
-)
+from vistask.envs.place_navigation import PlaceNavigationEnv, PlaceNavigationVectorEnv
+from vistask.envs.place_oracle import PlaceOracle, evaluation_starts
+from vistask.envs.place_plots import draw_world, view_sheet
+from vistask.envs.place_scene import Jitter
+from vistask.envs.place_world import PLACE_ACTION_NAMES, PlaceWorld
 from vistask.envs.visual_maze import (
     ACTION_ANGLES,
     ACTION_NAMES,

@@ -16,10 +16,11 @@ from vistask.envs import (
     PlaceWorld,
     draw_world,
     evaluation_starts,
+    place_scene,
     view_sheet,
 )
-from vistask.envs import place_navigation as pn
-from vistask.envs.place_navigation import FORWARD, LEFT, RIGHT, PlaceScene
+from vistask.envs.place_scene import PlaceScene
+from vistask.envs.place_world import FORWARD, HEADING_STEPS, LEFT, RIGHT
 
 VIEWS = 4  # a small bank keeps the tests fast (~2 s of rendering in all)
 
@@ -83,7 +84,7 @@ def test_turns_and_forward_moves():
         for heading in range(4):
             (new,), reached = world.step([[place, heading]], [FORWARD])
             row, col = divmod(place, world.cols)
-            dr, dc = pn.HEADING_STEPS[heading]
+            dr, dc = HEADING_STEPS[heading]
             expected = (row + dr) * world.cols + col + dc if world.open[place, heading] else place
             assert tuple(new) == (expected, heading)  # a closed street or the edge: stay
             assert reached[0] == (expected == world.goal != place)
@@ -93,7 +94,7 @@ def test_forward_into_a_wall_keeps_the_place(env):
     world = env.world
     closed = [(p, h) for p in range(world.n_places) for h in range(4) if not world.open[p, h]]
     rows, cols = np.divmod([p for p, _ in closed], world.cols)
-    steps = pn.HEADING_STEPS[[h for _, h in closed]]
+    steps = HEADING_STEPS[[h for _, h in closed]]
     inside = (rows + steps[:, 0] >= 0) & (rows + steps[:, 0] < world.rows)
     inside &= (cols + steps[:, 1] >= 0) & (cols + steps[:, 1] < world.cols)
     assert inside.any() and not inside.all()  # walls inside the town, and its edge
@@ -188,7 +189,7 @@ def test_the_disk_cache_round_trips(tmp_path, monkeypatch):
     first = PlaceNavigationEnv(**kwargs).views
     files = list((tmp_path / "place_navigation").iterdir())
     assert len(files) == 1 and files[0].suffix == ".npy"  # no temporary file left behind
-    pn.clear_memory_cache()
+    place_scene.clear_memory_cache()
 
     def no_rendering(*args, **kwargs):
         raise AssertionError("the views should come from the disk cache")
@@ -199,7 +200,7 @@ def test_the_disk_cache_round_trips(tmp_path, monkeypatch):
         PlaceNavigationEnv(**{**kwargs, "layout_seed": 1}).views  # noqa: B018
     monkeypatch.undo()
     files[0].write_bytes(b"damaged")
-    pn.clear_memory_cache()
+    place_scene.clear_memory_cache()
     np.testing.assert_array_equal(PlaceNavigationEnv(**kwargs).views, first)  # rendered again
 
 

@@ -23,7 +23,7 @@ from PIL import Image
 
 import vistask.envs  # noqa: F401  (registers the environments)
 from vistask.agents import Compaction, RLVCAgent
-from vistask.envs.place_navigation import draw_world, view_sheet
+from vistask.envs.place_plots import draw_world, view_sheet
 from vistask.experiments import statistics
 from vistask.experiments.tasks import PlaceTask, Task, task_for
 from vistask.experiments.train_rlvc import agent_policy

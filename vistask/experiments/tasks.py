@@ -25,7 +25,8 @@ from vistask.envs.car_oracle import CarOracle, evaluate_car_policy, start_states
 from vistask.envs.maze_oracle import EvaluationResult, Policy, grid_cells
 from vistask.envs.maze_plots import grid_positions
 from vistask.envs.mountain_car import MAX_POSITION, MAX_SPEED, VisualMountainCarEnv
-from vistask.envs.place_navigation import PlaceNavigationEnv, PlaceOracle
+from vistask.envs.place_navigation import PlaceNavigationEnv
+from vistask.envs.place_oracle import PlaceOracle
 
 ORACLE_DIRECTIONS = 32  # the continuous-direction maze's oracle picks among these many angles
 # The maze's test set: an action is optimal within this share of the range of optimal values
