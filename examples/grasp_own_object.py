@@ -17,7 +17,7 @@ os.environ.setdefault("MUJOCO_GL", "egl")  # render offscreen, on the CPU
 
 import torch
 
-from vistask.envs.grasp_trial import VectorGraspTrials
+from vistask.envs.grasp_runners import VectorGraspTrials
 from vistask.grasp import GraspLearner, demonstration_density, scripted_teacher_grasps
 
 KNOB_BLOCK = """<mujoco model="knob_block">

@@ -12,12 +12,8 @@ import torch
 
 pytest.importorskip("robosuite")
 
-from vistask.envs.grasp_trial import (
-    GraspTrialEnv,
-    VectorGraspTrials,
-    check_grasp,
-    top_down_grasp,
-)
+from vistask.envs.grasp_runners import VectorGraspTrials
+from vistask.envs.grasp_trial import GraspTrialEnv, check_grasp, top_down_grasp
 
 EASY = {"n_distractors": 0, "placement_range": 0.06, "tip_probability": 0.0}
 
@@ -112,7 +108,7 @@ def test_parallel_trials_in_processes() -> None:
 
 @pytest.mark.slow
 def test_ray_actors_run_the_trials_of_local_processes() -> None:
-    from vistask.envs.grasp_trial import RayGraspTrials
+    from vistask.envs.grasp_runners import RayGraspTrials
     from vistask.grasp import demonstration_density, run_trials, scripted_teacher_grasps
 
     results = []

@@ -58,7 +58,7 @@ def bench_grasp_trials(
 ) -> list[dict]:
     """``trials`` grasp trials (placements 0..trials-1, grasps from the scripted teacher's
     density) with each runner and worker count; seconds exclude starting the simulators."""
-    from vistask.envs.grasp_trial import RayGraspTrials, VectorGraspTrials
+    from vistask.envs.grasp_runners import RayGraspTrials, VectorGraspTrials
 
     rows, reference = [], None
     processes = functools.partial(VectorGraspTrials, asynchronous=True)  # even for one

@@ -83,7 +83,7 @@ def candidate_outcomes(
         ``local`` (P, K, 7) candidates, ``ok`` (P, K) reachable, ``success`` (P, K) bool,
         ``seeds`` (P,) placement seeds.
     """
-    from vistask.envs.grasp_trial import VectorGraspTrials
+    from vistask.envs.grasp_runners import VectorGraspTrials
 
     cached = folder / "candidates.pt"
     if cached.exists():

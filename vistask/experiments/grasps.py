@@ -7,7 +7,7 @@ measure that on the same held-out placements, and save densities, per-trial reco
 TensorBoard scalars and pictures.
 
 Every trial sees for itself by default: it renders the scene, estimates the object's pose
-with NBP on the learned model (``vistask.envs.grasp_trial.EstimatedPose``), and acts on that
+with NBP on the learned model (``vistask.envs.estimated_pose.EstimatedPose``), and acts on that
 estimate; the simulator's true pose only scores the estimate. ``pose_source="true"`` acts on
 the true poses instead (the ablation).
 
@@ -244,7 +244,7 @@ class GraspExperiment:
         return {"n_distractors": self.n_distractors, "tip_probability": self.tip_probability}
 
     def _runner(self, kind: str, model: ObjectModel | None):
-        from vistask.envs.grasp_trial import RayGraspTrials, VectorGraspTrials
+        from vistask.envs.grasp_runners import RayGraspTrials, VectorGraspTrials
 
         if cluster_address(self.address) is None:
             return VectorGraspTrials(kind, self.num_envs, model, **self.env_kwargs())
@@ -542,7 +542,8 @@ def pose_pictures(
     import cv2
     import numpy as np
 
-    from vistask.envs.grasp_trial import make_trial_env, observation_views
+    from vistask.envs.grasp_runners import make_trial_env
+    from vistask.envs.grasp_trial import observation_views
 
     env = make_trial_env(kind, model, **env_kwargs)
     paths = []

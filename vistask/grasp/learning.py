@@ -26,7 +26,7 @@ so its values are 10-100 times smaller than those of the later, concentrated pro
 
 The simulator (or robot) is reached through a ``TrialRunner``: anything with ``num_envs``,
 ``reset(seeds) -> (B, 7) object poses`` and ``execute((B, 7) world grasps) -> ((B,) bool
-successes, dict of (B,) diagnostics)``; ``vistask.envs.grasp_trial.VectorGraspTrials`` is
+successes, dict of (B,) diagnostics)``; ``vistask.envs.grasp_runners.VectorGraspTrials`` is
 one for the robosuite arm. The poses ``reset`` gives are those the robot acts on: its own
 estimates in the paper's setting, so that a grasp is recorded relative to the object *as
 estimated* and pose errors become part of what the density learns.
