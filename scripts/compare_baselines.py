@@ -23,7 +23,8 @@ import sys
 import torch
 
 from vistask.cli import interrupt_on_sigterm, json_object, non_negative_int, positive_int
-from vistask.experiments.compare import DEFAULT_BUDGETS, METHODS, Comparison, compare
+from vistask.experiments.compare import compare
+from vistask.experiments.comparison import DEFAULT_BUDGETS, METHODS, Comparison
 
 
 def main() -> None:

@@ -10,15 +10,10 @@ import numpy as np
 import pytest
 import torch
 
-from vistask.experiments.compare import (
-    DISCRETE_METHODS,
-    Comparison,
-    RunResult,
-    aggregate,
-    compare,
-    interactions_to,
-    speedups,
-)
+from vistask.experiments.compare import compare
+from vistask.experiments.compare_results import aggregate, interactions_to, speedups
+from vistask.experiments.compare_runs import RunResult
+from vistask.experiments.comparison import DISCRETE_METHODS, Comparison
 from vistask.experiments.tasks import GridCells, task_for
 
 
@@ -150,12 +145,12 @@ def test_worker_processes_and_a_local_ray_give_the_returns_of_one_process(tmp_pa
 
 
 def test_a_failed_run_is_reported_and_the_others_finish(tmp_path, monkeypatch):
-    import vistask.experiments.compare as comparison
+    import vistask.experiments.compare_runs as runs
 
     def broken(seed, *args):
         raise FloatingPointError(f"seed {seed} diverged")
 
-    monkeypatch.setattr(comparison, "run_random", broken)
+    monkeypatch.setattr(runs, "run_random", broken)
     config = _quick_rlvc_and_random(budgets=(200,))
     summary = compare(config, tmp_path, progress=False, workers=1)
     assert [f["method"] for f in summary["failed"]] == ["random", "random"]

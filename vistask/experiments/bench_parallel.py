@@ -17,7 +17,8 @@ from pathlib import Path
 
 import torch
 
-from vistask.experiments.compare import Comparison, compare
+from vistask.experiments.compare import compare
+from vistask.experiments.comparison import Comparison
 from vistask.grasp import demonstration_density, run_trials, scripted_teacher_grasps
 from vistask.parallel import worker_threads
 from vistask.runs import run_dir, write_summary
