@@ -6,7 +6,8 @@ import pytest
 import torch
 
 from vistask.objects import NBP, ObjectModel, appearance_descriptors, multiply, push_up
-from vistask.objects.nbp import SceneMatch, link_groups, scene_evidence
+from vistask.objects.messages import SceneMatch, scene_evidence
+from vistask.objects.nbp import link_groups
 from vistask.objects.synthetic import synthetic_object, synthetic_scene
 from vistask.se3 import SE3KDE, compose, inverse, kernels, random_poses, rotation_distance
 from vistask.vision import Patches, pose_error
