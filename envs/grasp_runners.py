@@ -17,7 +17,7 @@ import torch
 
 from vistask.envs.estimated_pose import ESTIMATION_CAMERAS, EstimatedPose
 from vistask.envs.grasp_trial import GraspTrialEnv
-from vistask.grasp.learning import Workspace
+from vistask.grasp.reach import Workspace
 from vistask.objects import ObjectModel
 from vistask.parallel import one_thread, ray_session, worker_threads
 

@@ -70,7 +70,7 @@ from vistask.envs.scene import (
     wxyz_to_xyzw,
     xyzw_to_wxyz,
 )
-from vistask.grasp.learning import Workspace
+from vistask.grasp.reach import Workspace
 from vistask.vision import (
     Camera,
     Patches,

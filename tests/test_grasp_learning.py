@@ -24,7 +24,7 @@ from vistask.grasp import (
     scripted_teacher_grasps,
     transform_density,
 )
-from vistask.grasp.learning import RELIABILITY_WIDTH
+from vistask.grasp.importance import RELIABILITY_WIDTH
 from vistask.se3 import SE3KDE, compose, identity_poses, make_poses, random_poses
 from vistask.vision import Patches
 

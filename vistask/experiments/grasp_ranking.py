@@ -24,7 +24,9 @@ from typing import Any
 import torch
 
 from vistask.experiments.grasps import BEST_OF, CHECKPOINT, EVAL_SEED_BASE
-from vistask.grasp.learning import RANKING_WIDTH, GraspLearner, draw_candidates, trial_seeds
+from vistask.grasp.importance import RANKING_WIDTH
+from vistask.grasp.learning import GraspLearner, trial_seeds
+from vistask.grasp.reach import draw_candidates
 from vistask.runs import write_summary
 from vistask.saving import load_state, save_state
 

@@ -40,7 +40,8 @@ from vistask.grasp.hypothesis import (
     feature_hypothesis_density,
     scripted_teacher_grasps,
 )
-from vistask.grasp.learning import RELIABILITY_POWER, GraspLearner, evaluate_density
+from vistask.grasp.importance import RELIABILITY_POWER
+from vistask.grasp.learning import GraspLearner, evaluate_density
 from vistask.grasp.plots import density_figure
 from vistask.objects import ObjectModel
 from vistask.parallel import cluster_address

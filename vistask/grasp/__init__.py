@@ -13,21 +13,20 @@ from vistask.grasp.hypothesis import (
     frames_to_poses,
     scripted_teacher_grasps,
 )
-from vistask.grasp.learning import (
-    CycleStats,
-    GraspLearner,
-    TrialRunner,
+from vistask.grasp.importance import (
     Trials,
-    Workspace,
-    approach_directions,
-    draw_reachable,
     empirical_density,
-    evaluate_density,
     importance_weights,
     local_success_rates,
     mixture_proposal,
+)
+from vistask.grasp.learning import CycleStats, GraspLearner, evaluate_density, run_trials
+from vistask.grasp.reach import (
+    TrialRunner,
+    Workspace,
+    approach_directions,
+    draw_reachable,
     reachable,
-    run_trials,
 )
 
 __all__ = [
