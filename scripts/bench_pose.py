@@ -6,7 +6,7 @@ Usage: python scripts/bench_pose.py [--out DIR] [--objects cereal milk bread ham
        [--particles 2000] [--refine-iters 3] [--threads 1] [--device cpu] [--pictures 1]
        [--workers N] [--address ray://head:10001]
 Models are learned from five cameras; test scenes are seen by one or two other cameras.
-Conditions (``vistask.experiments.pose.CONDITIONS``): two test cameras; one; one with 2 mm
+Conditions (``vistask.experiments.pose_scenes.CONDITIONS``): two test cameras; one; one with 2 mm
 depth noise and dropout at depth edges; other lighting; objects lying on a side; four
 lookalike distractors hiding at least half of the target, with depth noise. Open3D runs on
 the scene patches NBP sees ("open3d") and on the dense depth clouds ("open3d_dense"), with
@@ -26,7 +26,9 @@ from pathlib import Path
 import torch
 
 from vistask.cli import non_negative_int, positive_int
-from vistask.experiments.pose import CONDITIONS, METHODS, PoseBenchmark, write_results
+from vistask.experiments.pose import PoseBenchmark
+from vistask.experiments.pose_scenes import CONDITIONS, METHODS
+from vistask.experiments.pose_summary import write_results
 from vistask.objects import NBP
 from vistask.runs import run_dir, tensorboard
 

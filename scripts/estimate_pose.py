@@ -16,7 +16,9 @@ from pathlib import Path
 import torch
 
 from vistask.cli import non_negative_int, positive_int
-from vistask.experiments.pose import CONDITIONS, PoseBenchmark, write_results
+from vistask.experiments.pose import PoseBenchmark
+from vistask.experiments.pose_scenes import CONDITIONS
+from vistask.experiments.pose_summary import write_results
 from vistask.objects import NBP
 from vistask.runs import run_dir, tensorboard
 

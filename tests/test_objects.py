@@ -116,7 +116,11 @@ def test_tipped_objects_rest_on_a_side() -> None:
 
 
 def test_an_mjcf_object_is_learned_and_found_in_cluttered_scenes() -> None:
-    from vistask.experiments.pose import SUCCESS_ROTATION_DEG, SUCCESS_TRANSLATION_M, scene_patches
+    from vistask.experiments.pose_scenes import (
+        SUCCESS_ROTATION_DEG,
+        SUCCESS_TRANSLATION_M,
+        scene_patches,
+    )
     from vistask.objects import NBP, ObjectModel
     from vistask.vision import pose_error
 

@@ -5,7 +5,8 @@ import math
 
 import pytest
 
-from vistask.experiments.pose import PoseBenchmark, markdown_table, summarize, write_results
+from vistask.experiments.pose import PoseBenchmark
+from vistask.experiments.pose_summary import markdown_table, summarize, write_results
 
 
 def _record(method: str, cond: str, kind: str, t: float, r: float, s: float) -> dict:

@@ -28,7 +28,7 @@ from typing import Any
 import torch
 
 from vistask.checks import check_at_least, check_positive
-from vistask.experiments.pose import (
+from vistask.experiments.pose_scenes import (
     SUCCESS_ROTATION_DEG,
     SUCCESS_TRANSLATION_M,
     draw_estimate,

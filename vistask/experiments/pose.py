@@ -16,230 +16,38 @@ made.
 
 from __future__ import annotations
 
-import functools
 import hashlib
-import statistics
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import asdict
 from pathlib import Path
 
-import numpy as np
 import torch
 
 from vistask.envs.objects import DEFAULT_DISTRACTORS, object_name, object_spec
-from vistask.envs.scene import CAMERAS, LEARNING_CAMERAS, TABLE_TOP_Z, TEST_CAMERAS
-from vistask.experiments.statistics import success_interval
+from vistask.envs.scene import CAMERAS, TABLE_TOP_Z
+from vistask.experiments.pose_scenes import (
+    CONDITIONS,
+    DEFAULT_OBJECTS,
+    LOOKALIKE_POOL,
+    METHODS,
+    MIN_VISIBLE,
+    Condition,
+    draw_estimate,
+    learn_object_model,
+    lookalikes,
+    model_cloud,
+    scene_cloud,
+    scene_patches,
+    visible_fraction,
+)
+from vistask.experiments.pose_summary import pose_errors, summarize
 from vistask.objects import NBP, DepthCheck, ObjectModel, Open3DRegistration
-from vistask.objects.registration import view_cloud
 from vistask.parallel import Outcome, map_runs
-from vistask.runs import write_summary
 from vistask.vision import (
     Patches,
     PatchExtractor,
-    RGBDView,
-    object_patch_set,
-    object_surface,
-    pose_error,
-    view_patches,
 )
-
-DEFAULT_OBJECTS = ("cereal", "milk", "bread", "hammer", "can", "box")
-METHODS = ("nbp", "open3d", "open3d_dense")
-SUCCESS_TRANSLATION_M = 0.02
-SUCCESS_ROTATION_DEG = 15.0
-TABLE_MARGIN_M = 0.004
-"""Points lower than this above the table top belong to the table plane."""
-SCENE_HALF_WIDTH_M = 0.4
-"""Dense clouds keep the points above the table within this of its centre."""
-LOOKALIKE_POOL = (*DEFAULT_DISTRACTORS, "lemon", "bottle", "cube", "round_nut", "square_nut")
-"""Objects that lookalike distractors are chosen from (nearest in mean colour)."""
-MIN_VISIBLE = 0.15
-"""An occluded target still shows at least this fraction in some camera: a target hidden
-entirely is not a pose problem."""
-
-
-@dataclass(frozen=True)
-class Condition:
-    """How test scenes are made.
-
-    Attributes:
-        cameras: the test cameras (none of them used for learning).
-        distractors: distractor objects on the table.
-        lookalikes: draw the distractors from the ``distractors`` objects of
-            ``LOOKALIKE_POOL`` nearest to the target in mean colour.
-        occluders: stand the two tallest distractors between the target and the first
-            camera (``vistask.envs.objects.place_occluders``).
-        max_visible: draw scenes (seeds derived from the scene's) until the target shows
-            at most this fraction of its pixels in every camera (and at least
-            ``MIN_VISIBLE`` in one); None takes the first draw.
-        depth_noise: standard deviation of the depth noise (metres); pixels at depth
-            edges drop out with probability 0.5.
-        relight: change the lighting at random.
-        tip_probability: chance that an object that may tip lies on a side.
-        distractor_range: the other distractors' x and y are uniform in +-this (metres)
-            around the table centre; the target's in +-0.08.
-        max_tries: draws at most; then the most occluded draw is kept.
-    """
-
-    cameras: tuple[str, ...] = TEST_CAMERAS[:1]
-    distractors: int = 0
-    lookalikes: bool = False
-    occluders: bool = False
-    max_visible: float | None = None
-    depth_noise: float = 0.0
-    relight: bool = False
-    tip_probability: float = 0.0
-    distractor_range: float = 0.12
-    max_tries: int = 60
-
-
-CONDITIONS: dict[str, Condition] = {
-    "two_cameras": Condition(cameras=TEST_CAMERAS),
-    "one_camera": Condition(),
-    "depth_noise": Condition(depth_noise=0.002),
-    "lighting": Condition(relight=True),
-    "tipped": Condition(tip_probability=1.0),
-    "clutter": Condition(
-        distractors=4,
-        lookalikes=True,
-        occluders=True,
-        max_visible=0.5,
-        depth_noise=0.002,
-        distractor_range=0.15,
-    ),
-}
-
-
-def visible_fraction(scene, world) -> list[float]:
-    """Per camera, the target's pixels seen in ``scene`` over those seen with the
-    distractors removed (1: not occluded). Re-renders the target alone at its pose in
-    ``world`` (the ``TabletopWorld`` the scene came from)."""
-    if len(scene.objects) == 1:
-        return [1.0] * len(scene.views)
-    world.arrange([scene.target], scene.target_pose[None], max_steps=0)
-    fractions = []
-    for name, view in scene.views.items():
-        cam = view.camera
-        alone = world.render(name, [scene.target], cam.height, cam.width).mask(0).sum()
-        fractions.append(float(view.mask(0).sum()) / max(int(alone), 1))
-    return fractions
-
-
-def lookalikes(world, target: str, k: int) -> list[str]:
-    """The ``k`` objects of ``LOOKALIKE_POOL`` (other than ``target``) nearest to it in mean
-    colour, each rendered alone, upright, by the top and front cameras."""
-    colours = _mean_colours(world)
-    name = object_name(target)
-    others = [o for o in colours if o != name]
-    distance = {o: float(np.linalg.norm(colours[o] - colours[name])) for o in others}
-    return sorted(others, key=distance.get)[:k]
-
-
-@functools.cache
-def _mean_colours(world) -> dict[str, np.ndarray]:
-    """Mean RGB in [0, 1] of every object of ``world``, rendered alone (once per world)."""
-    from vistask.envs.objects import drop_pose, rest_rotation
-
-    colours = {}
-    for kind in world.kinds:
-        rot = rest_rotation(world.specs[kind])
-        upright = drop_pose(world.bounds[kind], rot, (0.0, 0.0), TABLE_TOP_Z)
-        world.arrange([kind], upright[None].float())
-        pixels = [
-            view.rgb[view.mask(0)].float()
-            for view in (world.render(c, [kind], 64, 64) for c in ("top", "front"))
-        ]
-        colours[kind] = torch.cat(pixels).mean(0).numpy() / 255.0
-    return colours
-
-
-def scene_patches(scene, extractor: PatchExtractor | None = None) -> Patches:
-    """World-frame patches of every view of a ``Scene``, without the table plane."""
-    patches = Patches.cat([view_patches(v, extractor=extractor) for v in scene.views.values()])
-    return patches.select(patches.positions[:, 2] > TABLE_TOP_Z + TABLE_MARGIN_M)
-
-
-def scene_cloud(views: Sequence[RGBDView], voxel: float) -> tuple[torch.Tensor, ...]:
-    """Every valid depth pixel of ``views`` above the table (within ``SCENE_HALF_WIDTH_M``
-    of its centre), per view down-sampled to ``voxel`` with normals turned towards its
-    camera (``view_cloud``): (N, 3) world points, normals and colours in [0, 1]."""
-    parts = []
-    for view in views:
-        p, c = view.point_cloud()
-        keep = (p[:, 2] > TABLE_TOP_Z + TABLE_MARGIN_M) & (p[:, :2].abs() < SCENE_HALF_WIDTH_M).all(
-            1
-        )
-        if keep.sum() >= 3:
-            parts.append(view_cloud(p[keep], c[keep], view.camera.cam_to_world[:3, 3], voxel))
-    if not parts:
-        raise ValueError("no depth pixel above the table")
-    return tuple(torch.cat(column) for column in zip(*parts, strict=True))
-
-
-def draw_estimate(view, model: ObjectModel, pose: torch.Tensor, scale: int = 2) -> np.ndarray:
-    """The model's patches back-projected into ``view`` at ``pose`` (7,) (paper Fig. 14).
-
-    Returns:
-        (scale * H, scale * W, 3) uint8 RGB picture.
-    """
-    from vistask.vision.draw import draw_patches
-
-    world = model.patches.transform(pose.float().cpu())
-    return draw_patches(view.rgb, view.camera, world, length=0.008, scale=scale)
-
-
-def learn_object_model(
-    kind: str,
-    tipped: bool = True,
-    n_rotations: int = 4,
-    image_size: int = 256,
-    voxel: float = 0.004,
-    extractor: PatchExtractor | None = None,
-) -> ObjectModel:
-    """The object model of ``kind`` from its own views by the learning cameras: upright at
-    ``n_rotations`` yaws, and laid on its sides too when ``tipped`` (and it may tip), one
-    patch per ``voxel``, with its surface's colours from the same views."""
-    from vistask.envs.tabletop import object_views
-
-    patches, surfaces = [], []
-    for side in _rest_sides(kind, tipped):
-        views, poses = object_views(kind, n_rotations, LEARNING_CAMERAS, image_size, side)
-        patches.append(object_patch_set(views, poses, 0, extractor, voxel))
-        surfaces.append(object_surface(views, poses, 0, voxel))
-    return ObjectModel.learn(Patches.cat(patches), object_name(kind), surface=torch.cat(surfaces))
-
-
-def _rest_sides(kind: str, tipped: bool) -> tuple[bool, ...]:
-    """The ``tipped`` flags of the views an object is learned from: upright, and lying too
-    when ``tipped`` and it may tip."""
-    return (False, True) if tipped and object_spec(kind).can_tip else (False,)
-
-
-def model_cloud(kind: str, n_rotations: int, image_size: int, voxel: float) -> tuple:
-    """The dense object-frame cloud of the views ``learn_object_model`` learns from: per
-    view, the object's pixels down-sampled to ``voxel`` with normals turned towards the
-    camera (``view_cloud``), then moved into the object's frame.
-
-    Returns:
-        (N, 3) object-frame points, normals and colours.
-    """
-    import roma
-
-    from vistask.envs.tabletop import object_views
-
-    parts = []
-    for side in _rest_sides(kind, True):
-        views, poses = object_views(kind, n_rotations, LEARNING_CAMERAS, image_size, side)
-        for view, pose in zip(views, poses, strict=True):
-            if view.mask(0).sum() < 3:
-                continue
-            points, colours = view.point_cloud(view.mask(0))
-            eye = view.camera.cam_to_world[:3, 3]
-            p, n, c = view_cloud(points, colours, eye, voxel)
-            R = roma.unitquat_to_rotmat(pose[3:])
-            parts.append(((p - pose[:3]) @ R, n @ R, c))
-    return tuple(torch.cat(column) for column in zip(*parts, strict=True))
 
 
 class PoseBenchmark:
@@ -419,9 +227,9 @@ class PoseBenchmark:
                 "pose": None if pose is None else pose.tolist(),
                 "true_pose": scene.target_pose.tolist(),
             }
-            record.update(_errors(pose, scene.target_pose, scene.symmetry()))
+            record.update(pose_errors(pose, scene.target_pose, scene.symmetry()))
             if shape is not None:
-                up_to_shape = _errors(pose, scene.target_pose, shape)
+                up_to_shape = pose_errors(pose, scene.target_pose, shape)
                 record["success_up_to_shape"] = up_to_shape["success"]
             records.append(record)
             if picture and pose is not None:
@@ -567,104 +375,3 @@ def picture_png(scene, model: ObjectModel, pose: torch.Tensor) -> bytes:
     if not ok:
         raise RuntimeError("OpenCV could not encode the picture as PNG")
     return png.tobytes()
-
-
-def _errors(pose: torch.Tensor | None, truth: torch.Tensor, symmetry) -> dict:
-    """Translation and rotation errors of ``pose`` (None: nothing found) and success."""
-    if pose is None:
-        t_err, r_err = float("inf"), 180.0
-    else:
-        te, re = pose_error(pose, truth, symmetry)
-        t_err, r_err = float(te), float(re)
-    return {
-        "translation_error_m": t_err,
-        "rotation_error_deg": r_err,
-        "success": t_err < SUCCESS_TRANSLATION_M and r_err < SUCCESS_ROTATION_DEG,
-    }
-
-
-def _stats(rows: list[dict], key: str = "success") -> dict:
-    wins, n = sum(r[key] for r in rows), len(rows)
-    low, high = success_interval(wins, n)
-    return {
-        "n_scenes": n,
-        "success": wins / n,
-        "ci_low": low,
-        "ci_high": high,
-        "median_translation_error_m": statistics.median(r["translation_error_m"] for r in rows),
-        "median_rotation_error_deg": statistics.median(r["rotation_error_deg"] for r in rows),
-        "seconds_per_scene": statistics.fmean(r["seconds"] for r in rows),
-        "mean_visible_fraction": statistics.fmean(max(r["visible_fraction"]) for r in rows),
-    }
-
-
-def summarize(records: list[dict]) -> dict:
-    """Per method and condition: overall figures plus ``per_object`` ones.
-
-    Returns:
-        {method: {condition: {success, ci_low, ci_high (95% Wilson interval),
-        median_translation_error_m, median_rotation_error_deg, seconds_per_scene, n_scenes,
-        mean_visible_fraction (in the camera that sees most of the target), per_object:
-        {kind: {...}}, up_to_shape: {kind: {...}} for objects whose texture alone breaks a
-        symmetry of their shape, scored modulo the shape's symmetry}}}
-    """
-    summary: dict = {}
-    for method in dict.fromkeys(r["method"] for r in records):
-        summary[method] = {}
-        for cond in dict.fromkeys(r["condition"] for r in records):
-            rows = [r for r in records if r["method"] == method and r["condition"] == cond]
-            if not rows:
-                continue
-            entry = _stats(rows)
-            kinds = dict.fromkeys(r["object"] for r in rows)
-            entry["per_object"] = {k: _stats([r for r in rows if r["object"] == k]) for k in kinds}
-            entry["up_to_shape"] = {
-                k: _stats([r for r in rows if r["object"] == k], "success_up_to_shape")
-                for k in kinds
-                if all("success_up_to_shape" in r for r in rows if r["object"] == k)
-            }
-            summary[method][cond] = entry
-    return summary
-
-
-def markdown_table(summary: dict) -> str:
-    """Markdown table: one row per method, condition and object (and "all"); objects whose
-    texture alone breaks a symmetry of their shape get a second row scored up to it."""
-    lines = [
-        "| method | condition | object | scenes | success (95% CI) | median t err (cm) "
-        "| median r err (deg) | s / scene | visible |",
-        "|---|---|---|---:|---:|---:|---:|---:|---:|",
-    ]
-    for method in METHODS:
-        for cond, entry in summary.get(method, {}).items():
-            rows = [
-                *entry["per_object"].items(),
-                *((f"{k} (shape only)", v) for k, v in entry["up_to_shape"].items()),
-                ("**all**", entry),
-            ]
-            for kind, s in rows:
-                lines.append(
-                    f"| {method} | {cond} | {kind} | {s['n_scenes']} "
-                    f"| {100 * s['success']:.0f}% ({100 * s['ci_low']:.0f}-"
-                    f"{100 * s['ci_high']:.0f}) "
-                    f"| {100 * s['median_translation_error_m']:.2f} "
-                    f"| {s['median_rotation_error_deg']:.1f} | {s['seconds_per_scene']:.2f} "
-                    f"| {100 * s['mean_visible_fraction']:.0f}% |"
-                )
-    return "\n".join(lines)
-
-
-def write_results(summary: dict, out: Path, title: str = "Pose estimation") -> str:
-    """Write ``summary.json`` and ``results.md`` to ``out``; returns the Markdown table."""
-    out.mkdir(parents=True, exist_ok=True)
-    table = markdown_table(summary)
-    write_summary(out / "summary.json", summary)
-    note = (
-        f"Success: translation error < {100 * SUCCESS_TRANSLATION_M:g} cm and rotation error "
-        f"< {SUCCESS_ROTATION_DEG:g} deg, modulo the object's symmetry; 95% Wilson intervals. "
-        "Seconds per scene: what the method extracts from the images (patches or clouds) plus "
-        "the method (rendering excluded). Visible: the target's visible pixels over its "
-        "pixels with the distractors removed, in the camera that sees most of it (mean)."
-    )
-    (out / "results.md").write_text(f"# {title}\n\n{table}\n\n{note}\n")
-    return table
