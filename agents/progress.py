@@ -50,6 +50,7 @@ class LearnProgress:
         self.bar.set_postfix(self.postfix, refresh=True)
 
     def close(self) -> None:
+        """Close the bar."""
         self.bar.close()
 
     def __enter__(self) -> LearnProgress:

@@ -30,10 +30,12 @@ class SB3Model:
         return self._vec_env
 
     def get_vec_normalize_env(self) -> None:
+        """None: the agents read raw observations (what SB3 callbacks ask for)."""
         return None  # the agents read raw observations
 
     @property
     def logger(self) -> Logger:
+        """SB3's logger of the current ``learn`` call (silent without ``tensorboard_log``)."""
         if self._logger is None:
             # SB3's configure_logger(0, None) would make an empty /tmp/SB3-<time> folder
             self._logger = Logger(folder=None, output_formats=[])

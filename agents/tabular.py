@@ -187,6 +187,7 @@ class TabularQAgent(SB3Model):
 
     @classmethod
     def load(cls, path: str | Path, env: gym.Env | None = None) -> TabularQAgent:
+        """Load a saved agent; with ``env``, check that its spaces match."""
         state = load_state(path, "TabularQAgent")
         q = state["q"].numpy()
         agent = cls(

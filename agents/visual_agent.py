@@ -40,6 +40,7 @@ def space_state(space: gym.spaces.Discrete | gym.spaces.Box) -> dict:
 
 
 def space_from_state(state: dict) -> gym.spaces.Discrete | gym.spaces.Box:
+    """The action space that ``space_state`` described."""
     if "n" in state:
         return gym.spaces.Discrete(state["n"])
     dtype = np.dtype(state["dtype"])

@@ -50,6 +50,7 @@ class CarOracle:
 
     @property
     def grid(self) -> int:
+        """Cells of the value grid along each of position and speed."""
         return self.q.shape[1]
 
     @property
@@ -184,6 +185,9 @@ def rollout(
     Args:
         act: batched ``act(percepts, states) -> actions`` over the live episodes (percepts are
             None when ``render`` is None).
+        starts: (n, 2) start states (p, s).
+        gamma: discount of the returns.
+        max_steps: episode cut-off.
         render: states (k, 2) -> percepts (k, H, W, 3), e.g. ``env.percepts``.
     """
     states = check_states(starts, "starts").copy()
@@ -217,6 +221,9 @@ def start_states(
 
     Args:
         oracle: the oracle that decides reachability (default: ``CarOracle.solve()``, ~0.3 s).
+        n: number of starts.
+        seed: seed of the draws.
+        max_steps: episode cut-off within which the top must be reachable.
     """
     if n < 1:
         raise ValueError(f"need at least one start, got n={n}")

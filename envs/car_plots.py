@@ -76,6 +76,7 @@ def plot_car_policy(
         actions_by_name: panel title -> (G, G) action ids indexed [s index, p index] over
             ``state_grid(G)`` (G may differ between panels); NaN cells are left blank.
         path: where to save the figure (PNG).
+        title: title over the panels ("": none).
     """
     if not actions_by_name:
         raise ValueError("plot_car_policy needs at least one (name, actions) panel")

@@ -68,6 +68,8 @@ class EstimatedPose(gym.Wrapper):
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
     ) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+        """Reset the trial and estimate the target's pose: ``info["estimated_pose"]`` (7,), with
+        its errors against the true pose."""
         obs, info = self.env.reset(seed=seed, options=options)
         start = time.perf_counter()
         lo, hi = (torch.tensor(c) for c in SCENE_BOX)

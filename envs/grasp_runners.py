@@ -110,6 +110,7 @@ class VectorGraspTrials:
         return torch.as_tensor(reward > 0.5), info
 
     def close(self) -> None:
+        """Close its simulators and worker processes."""
         self.env.close()
 
 
@@ -192,6 +193,7 @@ class RayGraspTrials:
         return torch.as_tensor(rewards > 0.5), self.last_info
 
     def close(self) -> None:
+        """Close its simulators and worker processes."""
         for actor in self.actors:
             self._ray.kill(actor)
         self._stack.close()

@@ -416,6 +416,7 @@ class GraspTrialEnv(gym.Env):
         return self._observe(), reward, True, False, info
 
     def render(self) -> np.ndarray | None:
+        """The front camera's RGB image with ``render_mode="rgb_array"`` (None otherwise)."""
         if self.render_mode != "rgb_array":
             return None
         name = self.cameras[0] if self.cameras else "frontview"
@@ -423,6 +424,7 @@ class GraspTrialEnv(gym.Env):
         return rgb[::-1].copy()
 
     def close(self) -> None:
+        """Close the robosuite simulation."""
         self._scene.close()
 
     # -- the grasp ----------------------------------------------------------------------
@@ -576,6 +578,7 @@ def top_down_grasp(object_pose: np.ndarray, bounds: np.ndarray, depth: float = 0
     Args:
         object_pose: (7,) world pose of the object.
         bounds: (2, 3) object-frame bounding box.
+        depth: how far below the top face the fingertips go, in metres.
 
     Returns:
         (7,) world grasp pose.

@@ -66,6 +66,7 @@ class MazeOracle:
 
     @property
     def grid(self) -> int:
+        """Cells of the value grid along each axis of the maze."""
         return self.q.shape[1]
 
     @property
@@ -184,9 +185,11 @@ def _direction_model(
     """Monte Carlo model of moving along one direction from every cell.
 
     Args:
+        geometry: the maze.
         origins: (cells, 2) start point of each cell (``_cell_origins``).
         noise: (k, 2) standard-normal draws, the same for every cell.
         direction: (2,) unit move direction.
+        grid: cells along each axis.
 
     Returns:
         (cells,) expected immediate rewards, and the (cells, cells) sub-stochastic transition
@@ -237,6 +240,7 @@ class EvaluationResult:
 
     @property
     def mean(self) -> float:
+        """Mean discounted return over the starts."""
         return float(self.returns.mean())
 
 

@@ -113,6 +113,8 @@ def hill_step(
     Args:
         states: (N, 2) rows (p, s).
         forces: (N,) forces u (``FORCES[actions]``).
+        dt: seconds of one control step.
+        substeps: Euler steps within it.
 
     Returns:
         next states (N, 2), rewards (N,) and terminal flags (N,) (see ``outcome``).
@@ -472,6 +474,7 @@ class VisualMountainCarEnv(gym.Env):
 
     # -- gymnasium API -----------------------------------------------------------------------
     def reset(self, *, seed: int | None = None, options: dict | None = None):
+        """Start an episode: (observation, info), ``info["position"]`` the true state."""
         super().reset(seed=seed)
         options = options or {}
         if "state" in options:
@@ -484,6 +487,7 @@ class VisualMountainCarEnv(gym.Env):
         return self.percept_at(self.state), {"position": self.state.copy()}
 
     def step(self, action):
+        """Take ``action``: (observation, reward, terminated, truncated, info)."""
         if not self.action_space.contains(action):
             raise ValueError(
                 f"invalid action {action!r}: expected an int in 0..{self.action_space.n - 1}"
@@ -495,6 +499,7 @@ class VisualMountainCarEnv(gym.Env):
         return obs, float(rewards[0]), bool(terminal[0]), False, {"position": self.state.copy()}
 
     def render(self) -> np.ndarray | None:
+        """The picture of ``render_mode="rgb_array"`` (None without a render mode)."""
         if self.render_mode != "rgb_array":
             return None
         return draw_road(self, self.state)
@@ -548,9 +553,12 @@ class VisualMountainCarVectorEnv(BatchedCopies):
 
     @property
     def gamma(self) -> float:
+        """The env's discount."""
         return self.car.gamma
 
     def reset(self, *, seed: int | list[int | None] | None = None, options: dict | None = None):
+        """Reset the copies (those of ``options["reset_mask"]`` only, if given): (observations,
+        infos)."""
         options = options or {}
         starts = None
         if "states" in options:
@@ -566,6 +574,8 @@ class VisualMountainCarVectorEnv(BatchedCopies):
         return self.car.percepts(self.states), infos
 
     def step(self, actions):
+        """Step every copy with ``actions`` (N,): (observations, rewards, terminated, truncated,
+        infos)."""
         actions = self._check_actions(actions)
         self.states, rewards, terminated = hill_step(self.states, FORCES[actions])
         truncated = self._count_step()

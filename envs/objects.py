@@ -152,7 +152,7 @@ register_object(
 
 
 def _class_name(name: str) -> str:
-    """ "round_nut" -> "RoundNutObject"; "CanObject" stays."""
+    """The robosuite class name of an object name: "round_nut" -> "RoundNutObject"."""
     if name.endswith("Object"):
         return name
     return "".join(part.capitalize() for part in re.split(r"[_\-\s]+", name)) + "Object"

@@ -166,6 +166,7 @@ class PlaceNavigationEnv(gym.Env):
 
     # -- gymnasium API -----------------------------------------------------------------------
     def reset(self, *, seed: int | None = None, options: dict | None = None):
+        """Start an episode: (observation, info), ``info["position"]`` the true state."""
         super().reset(seed=seed)
         options = options or {}
         if "state" in options:
@@ -180,6 +181,7 @@ class PlaceNavigationEnv(gym.Env):
         return self._observe(), self._info()
 
     def step(self, action):
+        """Take ``action``: (observation, reward, terminated, truncated, info)."""
         if not self.action_space.contains(action):
             raise ValueError(
                 f"invalid action {action!r}: expected an int in 0..2"
@@ -192,6 +194,7 @@ class PlaceNavigationEnv(gym.Env):
         return self._observe(), reward, terminated, False, self._info()
 
     def render(self) -> np.ndarray | None:
+        """The picture of ``render_mode="rgb_array"`` (None without a render mode)."""
         if self.render_mode != "rgb_array":
             return None
         return draw_town(self.world, self.scene, self.state)
@@ -247,6 +250,7 @@ class PlaceNavigationVectorEnv(BatchedCopies):
 
     @property
     def gamma(self) -> float:
+        """The env's discount."""
         return self.env.gamma
 
     def _draw_views(self, mask: np.ndarray) -> np.ndarray:
@@ -265,6 +269,8 @@ class PlaceNavigationVectorEnv(BatchedCopies):
         }
 
     def reset(self, *, seed: int | list[int | None] | None = None, options: dict | None = None):
+        """Reset the copies (those of ``options["reset_mask"]`` only, if given): (observations,
+        infos)."""
         options = options or {}
         world, starts = self.env.world, None
         if "states" in options:
@@ -280,6 +286,8 @@ class PlaceNavigationVectorEnv(BatchedCopies):
         return self._draw_views(mask), self._infos(mask)
 
     def step(self, actions):
+        """Step every copy with ``actions`` (N,): (observations, rewards, terminated, truncated,
+        infos)."""
         actions = self._check_actions(actions)
         self.states, terminated = self.env.world.step(self.states, actions)
         truncated = self._count_step()

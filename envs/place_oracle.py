@@ -71,6 +71,7 @@ class PlaceOracle:
 
     @property
     def world(self) -> PlaceWorld:
+        """The place graph of the env."""
         return self.env.world
 
     def value(self, states) -> np.ndarray:

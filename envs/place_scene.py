@@ -378,6 +378,7 @@ class PlaceScene:
 
     @property
     def model(self) -> mujoco.MjModel:
+        """The compiled MuJoCo model of the town (built on first use)."""
         if self._model is None:
             self._model = mujoco.MjModel.from_xml_string(self.xml, self.assets)
         return self._model

@@ -95,10 +95,12 @@ class PlaceWorld:
 
     @property
     def n_places(self) -> int:
+        """Number of places (rows x cols)."""
         return self.rows * self.cols
 
     @property
     def n_states(self) -> int:
+        """Number of (place, heading) states."""
         return 4 * self.n_places
 
     @property

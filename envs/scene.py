@@ -95,7 +95,7 @@ ROBOSUITE_CAMERAS = ("frontview", "birdview", "agentview", "sideview")
 
 
 def table_arena():
-    """robosuite's table arena with the table top at ``TABLE_TOP_Z`` over the world origin."""
+    """Robosuite's table arena with the table top at ``TABLE_TOP_Z`` over the world origin."""
     from robosuite.models.arenas import TableArena  # importing robosuite takes seconds
 
     return TableArena(table_full_size=TABLE_SIZE, table_offset=TABLE_CENTRE)

@@ -103,6 +103,7 @@ class Scene:
 
     @property
     def target(self) -> str:
+        """The target object (the first of ``objects``)."""
         return self.objects[0]
 
     @property

@@ -341,6 +341,7 @@ class VisualMazeEnv(gym.Env):
 
     # -- gymnasium API -----------------------------------------------------------------------
     def reset(self, *, seed: int | None = None, options: dict | None = None):
+        """Start an episode: (observation, info), ``info["position"]`` the true state."""
         super().reset(seed=seed)
         options = options or {}
         if "position" in options:
@@ -353,6 +354,7 @@ class VisualMazeEnv(gym.Env):
         return self.percept_at(self.position), {"position": self.position.copy()}
 
     def step(self, action):
+        """Take ``action``: (observation, reward, terminated, truncated, info)."""
         directions = self._directions(action)
         noise = self.np_random.standard_normal((1, 2))
         new, exited = self.geometry.move_towards(self.position[None], directions, noise)
@@ -376,6 +378,7 @@ class VisualMazeEnv(gym.Env):
         return ACTION_DIRECTIONS[actions]
 
     def render(self) -> np.ndarray | None:
+        """The picture of ``render_mode="rgb_array"`` (None without a render mode)."""
         if self.render_mode != "rgb_array":
             return None
         return draw_maze(self, agent=self.position)
@@ -437,12 +440,16 @@ class VisualMazeVectorEnv(BatchedCopies):
         return np.stack([self.maze.percept_at(p) for p in self.positions])
 
     def reset(self, *, seed: int | list[int | None] | None = None, options: dict | None = None):
+        """Reset the copies (those of ``options["reset_mask"]`` only, if given): (observations,
+        infos)."""
         mask = self._reset_copies(seed, options or {})
         for i in np.flatnonzero(mask):
             self.positions[i] = self.maze.geometry.sample_free(self.rngs[i], 1)[0]
         return self._percepts(), {"position": self.positions.copy(), "_position": mask.copy()}
 
     def step(self, actions):
+        """Step every copy with ``actions`` (N,): (observations, rewards, terminated, truncated,
+        infos)."""
         directions = self.maze._batch_directions(self._check_actions(actions))
         noise = np.concatenate([rng.standard_normal((1, 2)) for rng in self.rngs])
         geometry = self.maze.geometry

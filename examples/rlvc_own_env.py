@@ -26,11 +26,13 @@ class PhotoCorridor(gym.Env):
         return self.photo[200 : 200 + self.view, x : x + self.view].copy()
 
     def reset(self, *, seed=None, options=None):
+        """Start at a random cell left of the right end."""
         super().reset(seed=seed)
         self.position = int(self.np_random.integers(self.cells - 1))
         return self._obs(), {"position": self.position}
 
     def step(self, action):
+        """Move one cell; the episode ends at the right end with reward 1."""
         self.position = int(np.clip(self.position + (1 if action == 1 else -1), 0, self.cells - 1))
         done = self.position == self.cells - 1
         return self._obs(), float(done), done, False, {"position": self.position}

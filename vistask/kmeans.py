@@ -15,7 +15,7 @@ def _chunk_rows(n_centroids: int) -> int:
 def nearest_centroids(
     x: torch.Tensor, centroids: torch.Tensor, k: int = 1, c_sq: torch.Tensor | None = None
 ):
-    """k nearest centroids of each row of x (M, D), nearest first; ``c_sq`` (C,) are the
+    """K nearest centroids of each row of x (M, D), nearest first; ``c_sq`` (C,) are the
     centroids' squared norms when the caller has them.
 
     Returns (indices (M, k), squared distances (M, k)).

@@ -13,7 +13,7 @@ except ImportError:  # numpy < 2
 
 @contextmanager
 def base_pages() -> Iterator[None]:
-    """numpy's new arrays on the kernel's base pages, not transparent huge pages, inside the
+    """Numpy's new arrays on the kernel's base pages, not transparent huge pages, inside the
     block (also a decorator: ``@base_pages()``).
 
     numpy asks the kernel for huge pages for every array of 4 MB or more, and on some machines

@@ -51,6 +51,7 @@ class Outcome:
 
     @property
     def ok(self) -> bool:
+        """Whether the run ended without an error."""
         return self.error is None
 
 

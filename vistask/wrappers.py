@@ -21,7 +21,8 @@ class Classifier(Protocol):
 
     n_classes: int
 
-    def __call__(self, image: np.ndarray) -> int: ...
+    def __call__(self, image: np.ndarray) -> int:
+        """The class id of one image."""
 
 
 class VisualFeatures(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
@@ -54,6 +55,7 @@ class VisualFeatures(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
         self.observation_space = spaces.MultiBinary(extractor.n_features + len(self.compounds))
 
     def observation(self, observation: np.ndarray) -> np.ndarray:
+        """(F + C,) int8 presence of the words, then of the compounds, in the image."""
         return self.extractor.presence([observation], self.compounds)[0].numpy().astype(np.int8)
 
 
@@ -79,6 +81,7 @@ class VisualClasses(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
         self.observation_space = spaces.Discrete(classifier.n_classes)
 
     def observation(self, observation: np.ndarray) -> int:
+        """The visual class of the image."""
         return int(self.classifier(observation))
 
 
@@ -115,4 +118,5 @@ class JointClasses(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
         self.observation_space = spaces.MultiBinary(classifier.n_classes)
 
     def observation(self, observation: np.ndarray) -> np.ndarray:
+        """(K,) int8 mask of the joint classes compatible with the image."""
         return self.classifier(observation).astype(np.int8)

@@ -64,6 +64,7 @@ def bench_rljc(
 
 
 def print_bench(result: dict, out: Path) -> None:
+    """Print the per-seed table and the means, with the folder it was written to."""
     header = ["seed", *COLUMNS]
     print(f"RLJC vs four-action RLVC, {result['interactions']} interactions -> {out}")
     print(" | ".join(header))

@@ -142,7 +142,7 @@ PROFILE_TAUS = np.linspace(0.0, 1.2, 25)  # thresholds on return / oracle
 
 
 def final_statistics(methods: dict[str, dict], learner: str | None) -> dict[str, object]:
-    """rliable's view of the final returns as fractions of the oracle's: median, IQM, mean
+    """Rliable's view of the final returns as fractions of the oracle's: median, IQM, mean
     and optimality gap with intervals, performance profiles, and the probability that a
     ``learner`` run beats a run of each other method."""
     scores = {
@@ -164,7 +164,7 @@ def final_statistics(methods: dict[str, dict], learner: str | None) -> dict[str,
 
 
 def write_pictures(out: Path, methods: dict[str, dict], stats: dict, budgets, oracle: float):
-    """rliable's plots: ``curves.png`` (IQM return against interactions, log x, with 95%
+    """Rliable's plots: ``curves.png`` (IQM return against interactions, log x, with 95%
     intervals), ``aggregates.png``, ``profiles.png`` and ``improvement.png``; and
     ``wallclock.png``, the return against training seconds."""
     curves = {

@@ -190,6 +190,7 @@ class RunSpec:
 
     @property
     def key(self) -> tuple[str, int, tuple[int, ...]]:
+        """The (method, seed, budgets) that identify the run."""
         return (self.method, self.seed, self.budgets)
 
 

@@ -189,6 +189,10 @@ class PoseBenchmark:
 
         Args:
             models: the object model and its dense (points, normals, colours) cloud.
+            kind: the target object.
+            condition: a key of ``CONDITIONS``.
+            index: the scene's number within the object and condition.
+            picture: also draw each estimate over the test view.
 
         Returns:
             one record per method, and PNG pictures of the estimates (name -> bytes) if

@@ -93,6 +93,7 @@ def iqm_curves(
 
     Args:
         scores: per method, (S, B) scores of S seeds at B budgets.
+        seed: seed of the bootstrap resamples.
 
     Returns:
         per method, (B,) IQM, (B,) lower and (B,) upper bounds (equal to the IQM with one
@@ -110,6 +111,7 @@ def iqm_intervals(scores: Mapping[str, np.ndarray], seed: int = 0) -> dict[str, 
 
     Args:
         scores: per measure (or method), (S,) values of S seeds.
+        seed: seed of the bootstrap resamples.
 
     Returns:
         per name, ``[iqm, low, high]``.
@@ -158,6 +160,7 @@ def aggregate_metrics(
     Args:
         scores: per method, (S,) scores of S seeds normalised so that 1 is the target
             (here the oracle's return).
+        seed: seed of the bootstrap resamples.
 
     Returns:
         per method and metric (``METRICS``), ``[estimate, low, high]``.
@@ -173,6 +176,7 @@ def performance_profiles(
     Args:
         scores: per method, (S,) normalised scores.
         taus: (T,) thresholds.
+        seed: seed of the bootstrap resamples.
 
     Returns:
         per method, (T,) fractions, (T,) lower and (T,) upper bounds.
@@ -189,6 +193,7 @@ def improvement_probabilities(
     Args:
         scores: per method, (S,) scores.
         pairs: (X, Y) method names.
+        seed: seed of the bootstrap resamples.
 
     Returns:
         per pair ``"X,Y"``, ``[estimate, low, high]``.
@@ -224,7 +229,7 @@ def _save(fig, path: Path) -> None:
 
 
 def plot_aggregates(path: Path, aggregates: Mapping[str, Mapping[str, list[float]]]) -> None:
-    """rliable's interval plot of ``aggregate_metrics``' output."""
+    """Rliable's interval plot of ``aggregate_metrics``' output."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -244,7 +249,7 @@ def plot_aggregates(path: Path, aggregates: Mapping[str, Mapping[str, list[float
 def plot_profiles(
     path: Path, profiles: Mapping[str, tuple[np.ndarray, ...]], taus: Sequence[float]
 ) -> None:
-    """rliable's performance-profile plot of ``performance_profiles``' output."""
+    """Rliable's performance-profile plot of ``performance_profiles``' output."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -269,7 +274,7 @@ def plot_sample_efficiency(
     curves: Mapping[str, tuple[np.ndarray, ...]],
     oracle: float | None = None,
 ) -> None:
-    """rliable's sample-efficiency plot of ``iqm_curves``' output (log x), with the oracle's
+    """Rliable's sample-efficiency plot of ``iqm_curves``' output (log x), with the oracle's
     return and 90% of it as dashed and dotted lines."""
     import matplotlib
 
@@ -297,7 +302,7 @@ def plot_sample_efficiency(
 
 
 def plot_improvement(path: Path, probabilities: Mapping[str, list[float]]) -> None:
-    """rliable's probability-of-improvement plot of ``improvement_probabilities``' output."""
+    """Rliable's probability-of-improvement plot of ``improvement_probabilities``' output."""
     import matplotlib
 
     matplotlib.use("Agg")

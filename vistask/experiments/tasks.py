@@ -60,6 +60,7 @@ class MazeTask:
 
     @staticmethod
     def true_state(env: gym.Env) -> np.ndarray:
+        """The true state of ``env`` (for oracles and the true-grid baseline)."""
         return env.unwrapped.position
 
     def test_set(self, grid: int = 30) -> tuple[np.ndarray, np.ndarray]:
@@ -102,6 +103,7 @@ class CarTask:
 
     @staticmethod
     def true_state(env: gym.Env) -> np.ndarray:
+        """The true state of ``env`` (for oracles and the true-grid baseline)."""
         return env.unwrapped.state
 
 
@@ -125,6 +127,7 @@ class PlaceTask:
 
     @staticmethod
     def true_state(env: gym.Env) -> np.ndarray:
+        """The true state of ``env`` (for oracles and the true-grid baseline)."""
         return env.unwrapped.state
 
     def test_set(self) -> tuple[np.ndarray, np.ndarray]:
@@ -180,4 +183,5 @@ class GridCells(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
         self.observation_space = spaces.Discrete(grid * grid)
 
     def observation(self, observation: np.ndarray) -> int:
+        """The true-grid cell of the env's true state."""
         return int(self.task.cells(self.task.true_state(self.env)[None], self.grid)[0])

@@ -190,6 +190,7 @@ def discrete_comparison(
 
 
 def print_summary(summary: dict, out: Path) -> None:
+    """Print the summary as a table, with the folder it was written to."""
     rows = {"RLJC mean return": summary["rljc_return"]}
     for key, name in (
         ("return_ratio", "return ratio (RLJC / oracle)"),

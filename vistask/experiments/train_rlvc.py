@@ -102,6 +102,7 @@ class Scorer:
         self.last_returns: np.ndarray | None = None
 
     def __call__(self, agent: VisualAgent) -> float:
+        """Mean discounted return of ``agent``'s greedy policy from the task's starts."""
         if self.task is not None:
             self.last_returns = self.task.evaluate(agent_policy(agent)).returns
         else:
@@ -407,6 +408,7 @@ def train_rlvc(
 
 
 def print_summary(summary: dict, out: Path) -> None:
+    """Print the summary as a table, with the folder it was written to."""
     rows = {"RLVC mean return": summary["rlvc_return"]}
     if "return_ratio" in summary:
         rows |= {

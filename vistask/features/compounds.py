@@ -158,10 +158,12 @@ class Compound:
     tolerance: float
 
     def as_list(self) -> list:
+        """The compound as plain values (for saved files)."""
         return [self.first, self.second, list(self.offset), self.tolerance]
 
     @classmethod
     def from_list(cls, values: list) -> Compound:
+        """The compound that ``as_list`` gave."""
         first, second, offset, tolerance = values
         return cls(int(first), int(second), (float(offset[0]), float(offset[1])), float(tolerance))
 
@@ -262,6 +264,10 @@ def propose(
     more images (a wider band of needle angles on a gauge, say).
 
     Args:
+        occ: occurrences of the parts (words or groups, and compounds) in the images.
+        tolerances: cell sizes of the displacements, in units of the first part's scale.
+        min_count: images a relation must be seen in.
+        max_candidates: candidates returned per tolerance.
         rank: scores of the bins from the images they hold, higher first, instead of their
             image counts: ``rank(images, start)`` with ``images`` (Z,) the images of every
             bin one bin after the other and ``start`` (B,) where each bin's begin; it is

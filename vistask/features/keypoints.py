@@ -158,6 +158,7 @@ class SiftExtractor:
 
     @property
     def descriptor_size(self) -> int:
+        """Length of a descriptor (128 for SIFT, plus 2 with colour)."""
         return 128 + (2 if self.color_weight > 0 else 0)
 
     def config(self) -> dict:
@@ -178,6 +179,7 @@ class SiftExtractor:
         return self._local.sift
 
     def __call__(self, image: np.ndarray) -> Keypoints:
+        """Keypoints of one (H, W, 3) or (H, W) uint8 image."""
         if self.panel_widths:
             return self.batch([image])[0]
         return self._detect(check_image(image))[0]

@@ -61,7 +61,7 @@ class CoarseGroups:
     def nearest(
         self, x: torch.Tensor, centroids: torch.Tensor, k: int = 1, c_sq: torch.Tensor | None = None
     ):
-        """k nearest prototypes of each row of x (M, D) among its probed groups, nearest
+        """K nearest prototypes of each row of x (M, D) among its probed groups, nearest
         first: (indices (M, k), squared distances (M, k)), like ``_nearest``; ``c_sq`` (F,)
         are the prototypes' squared norms when the caller has them."""
         if c_sq is None:
@@ -202,6 +202,7 @@ class VisualFeatureExtractor:
 
     @property
     def n_features(self) -> int:
+        """Number of visual features (the vocabulary's words; compounds come after them)."""
         return len(self.centroids)
 
     @property
@@ -271,7 +272,7 @@ class VisualFeatureExtractor:
         return cls(keypoints, centroids, max_distance, groups=coarse)
 
     def nearest(self, x: torch.Tensor, k: int = 1) -> tuple[torch.Tensor, torch.Tensor]:
-        """k nearest prototypes of descriptors x (M, D): (indices (M, k), squared distances)."""
+        """K nearest prototypes of descriptors x (M, D): (indices (M, k), squared distances)."""
         k = min(k, self.n_features)
         if self.groups is None:
             return nearest_centroids(x, self.centroids, k, self._centroid_sq)
@@ -353,6 +354,7 @@ class VisualFeatureExtractor:
         return self.presence([image])[0].numpy().astype(np.int8)
 
     def state_dict(self) -> dict:
+        """Its settings and learned values as plain values and tensors (for ``save``)."""
         return {
             "keypoints": self.keypoints.config(),
             "centroids": self.centroids.cpu(),
@@ -368,6 +370,7 @@ class VisualFeatureExtractor:
 
     @classmethod
     def from_state_dict(cls, state: dict) -> VisualFeatureExtractor:
+        """The object that ``state_dict`` described."""
         return cls(
             SiftExtractor(**state["keypoints"]),
             state["centroids"],
@@ -376,8 +379,10 @@ class VisualFeatureExtractor:
         )
 
     def save(self, path: str | Path) -> None:
+        """Write it to ``path``; ``load`` reads it back."""
         save_state(path, "VisualFeatureExtractor", self.state_dict())
 
     @classmethod
     def load(cls, path: str | Path) -> VisualFeatureExtractor:
+        """Read what ``save`` wrote to ``path``."""
         return cls.from_state_dict(load_state(path, "VisualFeatureExtractor"))

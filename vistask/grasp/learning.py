@@ -212,6 +212,7 @@ class GraspLearner:
         return stats
 
     def state_dict(self) -> dict[str, Any]:
+        """Its settings and learned values as plain values and tensors (for ``save``)."""
         t = self.trials
         empirical = self.empirical
         return {

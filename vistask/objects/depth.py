@@ -175,6 +175,7 @@ class DepthCheck:
             poses: (H, 7) object poses (world).
             points: (N, 3) model points in the object frame (at most ``REFINE_POINTS`` of
                 them are used).
+            iters: fits at each scale.
 
         Returns:
             (H, 7) the refined poses; a pose stays where fewer than ``MIN_MATCHES`` points

@@ -166,6 +166,10 @@ def multiply(
     Args:
         messages: C >= 1 densities over the same variable.
         n: number of candidates.
+        floor: share of a message's typical value added to it, so that a message without
+            evidence lowers a candidate's weight without vetoing it.
+        cutoff: kernel cut-off (multiples of sigma_t) of the evaluations, or None.
+        generator: random generator.
 
     Returns:
         the product density (bandwidth of the first message).

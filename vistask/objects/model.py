@@ -65,6 +65,7 @@ class Feature:
 
     @property
     def is_primitive(self) -> bool:
+        """Whether the feature is an appearance class of patches (else a meta-feature)."""
         return self.appearance is not None
 
 
@@ -234,10 +235,12 @@ class ObjectModel:
     # --- structure ---------------------------------------------------------------------------
     @property
     def n_classes(self) -> int:
+        """Number of appearance classes (primitive features)."""
         return self.centres.shape[0]
 
     @property
     def root(self) -> int:
+        """Index of the root feature (the object's frame)."""
         return len(self.features) - 1
 
     def leaves(self) -> list[int]:
@@ -297,6 +300,7 @@ class ObjectModel:
 
     # --- persistence -------------------------------------------------------------------------
     def state_dict(self) -> dict:
+        """Its settings and learned values as plain values and tensors (for ``save``)."""
         grasp = None if self.grasp_density is None else self.grasp_density.state_dict()
         feats = [
             {

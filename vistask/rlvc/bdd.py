@@ -92,6 +92,7 @@ class ClassBDD:
 
     @property
     def n_classes(self) -> int:
+        """Number of classes."""
         return self._n_classes
 
     @property
@@ -317,6 +318,7 @@ class ClassBDD:
         return steps
 
     def state_dict(self) -> dict:
+        """Its settings and learned values as plain values and tensors (for ``save``)."""
         return {
             "n_features": self.n_features,
             "in_bdd": self.in_bdd,
@@ -448,6 +450,10 @@ def _replay(
     step 0, every row in class 0).
 
     Args:
+        bits: (N, T) bool presence of the tested features.
+        steps: the compiled steps.
+        start: the step to replay from.
+        classes: (n,) classes of the rows at ``start``.
         trail: (len(steps) + 1 - start, n) array whose row i receives the classes before
             step start + i, and whose last row the result.
         rows: replay only these n rows of ``bits`` (default: all N).

@@ -48,16 +48,20 @@ class VisualClassifier:
 
     @property
     def n_classes(self) -> int:
+        """Number of classes."""
         return self.structure.n_classes
 
     def classify(self, images: list[np.ndarray]) -> torch.Tensor:
+        """(N,) visual classes of a list of images."""
         presence = self.extractor.presence(images, self.compounds)
         return classify(self.structure, self.seen, presence)
 
     def __call__(self, image: np.ndarray) -> int:
+        """The visual class of one image (or, for joint classes, its mask)."""
         return int(self.classify([check_image(image)])[0])
 
     def state_dict(self) -> dict:
+        """Its settings and learned values as plain values and tensors (for ``save``)."""
         return {
             "extractor": self.extractor.state_dict(),
             "fingerprint": self.extractor.fingerprint,
@@ -88,10 +92,12 @@ class VisualClassifier:
         return cls(extractor, structure, compounds, seen)
 
     def save(self, path: str | Path) -> None:
+        """Write it to ``path``; ``load`` reads it back."""
         save_state(path, "VisualClassifier", self.state_dict())
 
     @classmethod
     def load(cls, path: str | Path, extractor: VisualFeatureExtractor | None = None):
+        """Read what ``save`` wrote to ``path``."""
         return cls.from_state_dict(load_state(path, "VisualClassifier"), extractor)
 
 
@@ -116,6 +122,7 @@ class JointClassifier:
 
     @property
     def n_classes(self) -> int:
+        """Number of classes."""
         return self.structure.n_classes
 
     @property
@@ -140,9 +147,11 @@ class JointClassifier:
         return self.structure.cells(self.extractor.presence(images))[0]
 
     def __call__(self, image: np.ndarray) -> np.ndarray:
+        """The visual class of one image (or, for joint classes, its mask)."""
         return self.compatible([check_image(image)])[0].numpy()
 
     def state_dict(self) -> dict:
+        """Its settings and learned values as plain values and tensors (for ``save``)."""
         return {
             "extractor": self.extractor.state_dict(),
             "structure": self.structure.state_dict(),
@@ -150,14 +159,17 @@ class JointClassifier:
 
     @classmethod
     def from_state_dict(cls, state: dict) -> JointClassifier:
+        """The object that ``state_dict`` described."""
         return cls(
             VisualFeatureExtractor.from_state_dict(state["extractor"]),
             JointTree.from_state_dict(state["structure"]),
         )
 
     def save(self, path: str | Path) -> None:
+        """Write it to ``path``; ``load`` reads it back."""
         save_state(path, "JointClassifier", self.state_dict())
 
     @classmethod
     def load(cls, path: str | Path) -> JointClassifier:
+        """Read what ``save`` wrote to ``path``."""
         return cls.from_state_dict(load_state(path, "JointClassifier"))

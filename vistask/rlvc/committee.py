@@ -69,10 +69,12 @@ class Committee:
         return self.mean_q(self.classify(presence)).argmax(dim=1)
 
     def state_dict(self) -> dict:
+        """Its settings and learned values as plain values and tensors (for ``save``)."""
         return {"structures": [s.state_dict() for s in self.structures], "q": self.q}
 
     @classmethod
     def from_state_dict(cls, state: dict) -> Committee:
+        """The object that ``state_dict`` described."""
         structures = [ClassBDD.from_state_dict(s) for s in state["structures"]]
         return cls(structures, list(state["q"]))
 

@@ -89,6 +89,8 @@ class ReductionRank:
         return cls(torch.stack(moments, 1).view(n_percepts, n_actions, 3), min_count)
 
     def __call__(self, images: np.ndarray, start: np.ndarray) -> np.ndarray:
+        """Reduction scores of the relations found in ``images`` (their first occurrences at
+        ``start``)."""
         self.ranked += len(start)
         if not len(start):
             return np.zeros(0)
@@ -133,6 +135,7 @@ def find_compound_splits(
         tolerances: tolerances of the candidates, in units of their first part's keypoint
             scale: a compound covers a band of relations as wide as its tolerance.
         max_classes: classes searched, by decreasing TD-error variance.
+        skip: classes not to search (searched in vain since they last changed).
         max_candidates: candidate compounds scored per class and tolerance, those whose
             bins' percepts split the TD errors best (``ReductionRank``).
         to_beat: primitive splits of some classes (``find_splits``), the reductions that

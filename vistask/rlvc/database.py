@@ -290,6 +290,7 @@ class InteractionDatabase:
 
     @property
     def n_features(self) -> int:
+        """Number of visual features (the vocabulary's words; compounds come after them)."""
         return self.presence.shape[1]
 
     @classmethod

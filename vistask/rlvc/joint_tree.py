@@ -72,6 +72,7 @@ class JointTree:
 
     @property
     def n_classes(self) -> int:
+        """Number of classes."""
         return len(self._leaf_of_class)
 
     @property
@@ -91,6 +92,7 @@ class JointTree:
 
     @property
     def action_tests(self) -> int:
+        """Number of nodes that test an action threshold."""
         return sum(d >= 0 for d in self.dim)
 
     def _check_class(self, class_id: int) -> None:
@@ -242,6 +244,7 @@ class JointTree:
         return cells_of(*self.compatible(presence), len(presence), self.n_classes)
 
     def state_dict(self) -> dict:
+        """Its settings and learned values as plain values and tensors (for ``save``)."""
         return {
             "n_features": self.n_features,
             "low": self.low.tolist(),
@@ -256,6 +259,7 @@ class JointTree:
 
     @classmethod
     def from_state_dict(cls, state: dict) -> JointTree:
+        """The object that ``state_dict`` described."""
         tree = cls(state["n_features"], state["low"], state["high"])
         # Replay the splits in node order: node k's children are nodes made by its split.
         order = sorted(

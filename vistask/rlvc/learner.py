@@ -177,6 +177,7 @@ class RLVC:
 
     @property
     def n_classes(self) -> int:
+        """Number of classes."""
         return self.structure.n_classes
 
     @property
@@ -565,6 +566,7 @@ class RLVC:
         }
 
     def state_dict(self) -> dict:
+        """Its settings and learned values as plain values and tensors (for ``save``)."""
         return {
             "config": self.config(),
             "compounds": [c.as_list() for c in self.compounds],
@@ -578,6 +580,7 @@ class RLVC:
 
     @classmethod
     def from_state_dict(cls, state: dict) -> RLVC:
+        """The object that ``state_dict`` described."""
         rlvc = cls(**state["config"])
         rlvc.structure = type(rlvc.structure).from_state_dict(state["structure"])
         rlvc._splits_since_compaction = state["splits_since_compaction"]
@@ -591,10 +594,12 @@ class RLVC:
         return rlvc
 
     def save(self, path: str | Path) -> None:
+        """Write it to ``path``; ``load`` reads it back."""
         save_state(path, "RLVC", self.state_dict())
 
     @classmethod
     def load(cls, path: str | Path) -> RLVC:
+        """Read what ``save`` wrote to ``path``."""
         return cls.from_state_dict(load_state(path, "RLVC"))
 
 

@@ -52,11 +52,14 @@ def joint_values(
 
     Args:
         classes: (N,) joint class of each interaction.
-        rewards: (N,) rewards. terminal: (N,) bool.
+        rewards: (N,) rewards.
+        terminal: (N,) bool, the interaction ended the episode.
         next_cells: (N,) cell of each next percept.
         member_cell, member_class: (K,) the cells' compatible classes as pairs.
         n_classes: number of joint classes J.
         gamma: discount factor.
+        tol: stop when the cells' values V change by less than this.
+        max_iters: iteration cap.
 
     Returns:
         Q (J,) float64, -inf for classes that no interaction visited; V (C,) of the cells.
@@ -134,6 +137,7 @@ class RLJC:
 
     @property
     def n_classes(self) -> int:
+        """Number of classes."""
         return self.structure.n_classes
 
     @property
@@ -345,6 +349,7 @@ class RLJC:
         return rng.uniform(low, high)
 
     def state_dict(self) -> dict:
+        """Its settings and learned values as plain values and tensors (for ``save``)."""
         return {
             "config": {
                 "n_features": self.n_features,
@@ -361,6 +366,7 @@ class RLJC:
 
     @classmethod
     def from_state_dict(cls, state: dict) -> RLJC:
+        """The object that ``state_dict`` described."""
         rljc = cls(**state["config"])
         rljc.structure = JointTree.from_state_dict(state["structure"])
         rljc._q = state["q"]
@@ -368,8 +374,10 @@ class RLJC:
         return rljc
 
     def save(self, path: str | Path) -> None:
+        """Write it to ``path``; ``load`` reads it back."""
         save_state(path, "RLJC", self.state_dict())
 
     @classmethod
     def load(cls, path: str | Path) -> RLJC:
+        """Read what ``save`` wrote to ``path``."""
         return cls.from_state_dict(load_state(path, "RLJC"))

@@ -76,6 +76,7 @@ class SeenPercepts:
         return out
 
     def state_dict(self) -> dict:
+        """Its settings and learned values as plain values and tensors (for ``save``)."""
         return {
             "features": self.features,
             "indptr": torch.from_numpy(self.patterns.indptr.astype(np.int64)),
@@ -86,6 +87,7 @@ class SeenPercepts:
 
     @classmethod
     def from_state_dict(cls, state: dict) -> SeenPercepts:
+        """The object that ``state_dict`` described."""
         indptr, indices = state["indptr"].numpy(), state["indices"].numpy()
         shape = (len(indptr) - 1, len(state["features"]))
         ones = np.ones(len(indices), np.float32)

@@ -37,6 +37,7 @@ class ClassTree:
 
     @property
     def n_classes(self) -> int:
+        """Number of classes."""
         return len(self._leaf_of_class)
 
     @property
@@ -46,6 +47,7 @@ class ClassTree:
 
     @property
     def depth(self) -> int:
+        """Length of the longest path from the root to a leaf."""
         depth = {0: 0}
         for node, f in enumerate(self.feature):
             if f >= 0:
@@ -109,6 +111,7 @@ class ClassTree:
         return torch.as_tensor(leaf_class[node], device=device)
 
     def state_dict(self) -> dict:
+        """Its settings and learned values as plain values and tensors (for ``save``)."""
         return {
             "n_features": self.n_features,
             "feature": list(self.feature),
@@ -119,6 +122,7 @@ class ClassTree:
 
     @classmethod
     def from_state_dict(cls, state: dict) -> ClassTree:
+        """The object that ``state_dict`` described."""
         tree = cls(state["n_features"])
         tree.feature, tree.absent = list(state["feature"]), list(state["absent"])
         tree.present, tree.leaf_class = list(state["present"]), list(state["leaf_class"])

@@ -88,10 +88,12 @@ class KernelDensity:
 
     @staticmethod
     def kappa_from_sigma(sigma_r: float) -> float:
+        """The direction kernel's concentration for the bandwidth ``sigma_r`` (radians)."""
         raise NotImplementedError
 
     @staticmethod
     def log_direction_normalizer(kappa: float) -> float:
+        """Log of the direction kernel's normalising constant at ``kappa``."""
         raise NotImplementedError
 
     @staticmethod
@@ -112,6 +114,7 @@ class KernelDensity:
 
     @property
     def device(self) -> torch.device:
+        """The device its tensors are on."""
         return self._points.device
 
     def __len__(self) -> int:
@@ -128,7 +131,7 @@ class KernelDensity:
         return float(1.0 / (self._weights.double() ** 2).sum())
 
     def log_normalizer(self) -> float:
-        """log of the integral of one kernel over R^3 x (direction space)."""
+        """Log of the integral of one kernel over R^3 x (direction space)."""
         return kernels.log_position_normalizer(
             self.sigma_t, self.kernel
         ) + self.log_direction_normalizer(self.kappa)
@@ -189,6 +192,7 @@ class KernelDensity:
         return values.reshape(batch)
 
     def __call__(self, points: torch.Tensor, **kwargs) -> torch.Tensor:
+        """``evaluate(points, **kwargs)``: (M,) density values."""
         return self.evaluate(points, **kwargs)
 
     def _evaluate_dense(self, x: torch.Tensor, chunk_size: int | None) -> torch.Tensor:
@@ -386,6 +390,7 @@ class KernelDensity:
 
     # --- persistence and devices ------------------------------------------------------------
     def state_dict(self) -> dict:
+        """Its settings and learned values as plain values and tensors (for ``save``)."""
         return {
             "type": type(self).__name__,
             "points": self._points.cpu(),
@@ -511,16 +516,20 @@ class SE3KDE(KernelDensity):
 
     @classmethod
     def check_points(cls, points: torch.Tensor, name: str, batched: bool = False) -> torch.Tensor:
+        """Validate (..., 3 + D) points and renormalise their direction part."""
         return check_poses(points, name, batched=batched)
 
     @staticmethod
     def kappa_from_sigma(sigma_r: float) -> float:
+        """The direction kernel's concentration for the bandwidth ``sigma_r`` (radians)."""
         return kernels.quaternion_kappa(sigma_r)
 
     @staticmethod
     def log_direction_normalizer(kappa: float) -> float:
+        """Log of the direction kernel's normalising constant at ``kappa``."""
         return kernels.log_quaternion_normalizer(kappa)
 
     @staticmethod
     def direction_angle(u: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
+        """Angle between directions (..., D) x (..., D) -> (...), with u ~ -u."""
         return 2.0 * torch.acos((u * v).sum(-1).abs().clamp(max=1.0))

@@ -61,6 +61,7 @@ def check_bandwidth(sigma_t: float, sigma_r: float) -> tuple[float, float]:
 
 
 def check_kernel(kernel: str) -> str:
+    """The kernel name, if it is "gaussian" or "triangular"; a ``ValueError`` otherwise."""
     if kernel not in KERNELS:
         raise ValueError(f"kernel must be one of {KERNELS}, got {kernel!r}")
     return kernel
@@ -86,7 +87,7 @@ def direction_kappa(sigma_r: float) -> float:
 
 
 def log_quaternion_normalizer(kappa: float) -> float:
-    """log of the integral of exp(kappa (|q . mu| - 1)) over SO(3) = S^3 / {q ~ -q}.
+    """Log of the integral of exp(kappa (|q . mu| - 1)) over SO(3) = S^3 / {q ~ -q}.
 
     With t = q . mu = cos(a), the S^3 volume element is 4 pi sin^2(a) da, and over the half
     sphere int_0^{pi/2} exp(kappa cos a) sin^2 a da = pi / (2 kappa) (I_1(kappa) + L_1(kappa))
@@ -103,7 +104,7 @@ def log_quaternion_normalizer(kappa: float) -> float:
 
 
 def log_direction_normalizer(kappa: float) -> float:
-    """log of the integral of exp(kappa (|v . mu| - 1)) over S^2 / {v ~ -v} (area 2 pi).
+    """Log of the integral of exp(kappa (|v . mu| - 1)) over S^2 / {v ~ -v} (area 2 pi).
 
     With t = v . mu uniform under the area measure, the integral is 2 pi (1 - e^-kappa) / kappa.
     """
@@ -111,7 +112,7 @@ def log_direction_normalizer(kappa: float) -> float:
 
 
 def log_position_normalizer(sigma_t: float, kernel: str) -> float:
-    """log of the integral over R^3 of the position kernel (Gaussian or triangular)."""
+    """Log of the integral over R^3 of the position kernel (Gaussian or triangular)."""
     if kernel == "gaussian":
         return 1.5 * math.log(2.0 * math.pi * sigma_t**2)
     # max(0, 1 - r / h) with h = 2 sigma_t integrates to pi h^3 / 3 over R^3.
@@ -289,7 +290,7 @@ def _unit(u: torch.Tensor, dtype: torch.dtype) -> torch.Tensor:
 
 
 def _mm(a: torch.Tensor, b: torch.Tensor, out: torch.Tensor) -> torch.Tensor:
-    """a @ b.T into ``out``, computed in the inputs' dtype."""
+    """A @ b.T into ``out``, computed in the inputs' dtype."""
     if a.dtype == out.dtype:
         return torch.mm(a, b.T, out=out)
     return out.copy_(torch.mm(a, b.T))

@@ -102,7 +102,7 @@ def compose(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
 
 
 def inverse(a: torch.Tensor) -> torch.Tensor:
-    """Inverse pose: (..., 7) -> (..., 7) with inverse(a) ∘ a = identity."""
+    """The inverse of each (..., 7) pose: composed with the pose, it gives the identity."""
     rotation = roma.unitquat_to_rotmat(a[..., 3:])
     t = -torch.einsum("...ji,...j->...i", rotation, a[..., :3])  # -R^T t
     return torch.cat([t, roma.quat_conjugation(a[..., 3:])], dim=-1)

@@ -51,18 +51,22 @@ class R3S2KDE(KernelDensity):
 
     @classmethod
     def check_points(cls, points: torch.Tensor, name: str, batched: bool = False) -> torch.Tensor:
+        """Validate (..., 3 + D) points and renormalise their direction part."""
         return check_r3s2(points, name, batched=batched)
 
     @staticmethod
     def kappa_from_sigma(sigma_r: float) -> float:
+        """The direction kernel's concentration for the bandwidth ``sigma_r`` (radians)."""
         return kernels.direction_kappa(sigma_r)
 
     @staticmethod
     def log_direction_normalizer(kappa: float) -> float:
+        """Log of the direction kernel's normalising constant at ``kappa``."""
         return kernels.log_direction_normalizer(kappa)
 
     @staticmethod
     def direction_angle(u: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
+        """Angle between directions (..., D) x (..., D) -> (...), with u ~ -u."""
         return torch.acos((u * v).sum(-1).abs().clamp(max=1.0))
 
     @classmethod

@@ -134,6 +134,8 @@ def depth_buffer_to_metres(buffer: Tensor, near: float, far: float) -> Tensor:
 
     Args:
         buffer: (H, W) depth buffer values in [0, 1].
+        near: distance of the near clipping plane, in metres.
+        far: distance of the far clipping plane, in metres.
 
     Returns:
         (H, W) depth in metres; the far plane maps to ``far``.

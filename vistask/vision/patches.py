@@ -74,6 +74,7 @@ class Patches:
 
     @property
     def device(self) -> torch.device:
+        """The device of the patch tensors."""
         return self.positions.device
 
     def _map(self, fn) -> Patches:
@@ -498,7 +499,14 @@ def _fit_normals(
     a single fit would average two faces into a normal that belongs to neither.
 
     Args:
-        u, v: (N,) patch pixels; d0: (N,) their depth; n2: (N, 2) unit 2-D edge normals.
+        z: (H, W) depth image in metres, NaN where invalid.
+        u, v: (N,) patch pixels.
+        d0: (N,) their depth.
+        n2: (N, 2) unit 2-D edge normals.
+        normal_radius: half side of the window of pixels fitted, in pixels.
+        depth_jump: depth difference that separates two surfaces, in metres.
+        K: (3, 3) camera intrinsics.
+        T: (4, 4) camera-to-world transform.
         positions: (N, 3) patch positions (to orient the normals).
     """
     du, dv = _window_offsets(normal_radius)
