@@ -38,9 +38,8 @@ def kmeans(x: torch.Tensor, k: int, iters: int = 20, seed: int = 0) -> torch.Ten
     """Lloyd's k-means from k random points. x (M, D) float -> centroids (k, D).
     Deterministic for a seed.
 
-    Random seeds follow the density of the points, which suits a vocabulary: fitted from
-    k-means++ seeds, the maze's vocabulary scored 0.904 of the oracle against 0.927 (seeds
-    0-4). The object models' few colour classes need k-means++ and use scipy's ``kmeans2``.
+    Random seeds follow the density of the points, which suits a vocabulary; the object
+    models' few colour classes need k-means++ and use scipy's ``kmeans2``.
 
     Empty clusters are re-seeded with the points farthest from their centroids, so that every
     prototype ends up describing some descriptors.

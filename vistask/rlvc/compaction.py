@@ -12,13 +12,8 @@ action loses at most t in every other member.
 
 A feature that compaction drops moves the few percepts that show it, not whole classes: a
 percept of s1 may go to s2 when s2's greedy action loses at most t in s1 and the values differ
-by at most ``DROP_VALUE_TOLERANCE`` t. On the visual maze (seeds 0-4) this drops half of the
-features that interchangeable classes keep (348 selected features against 736, the tree's
-832) at the same return (0.935 of the oracle's against 0.930); values within 5 t kept 392
-features, any values 351 at 0.914 of the oracle's return. A learner that makes compounds
-drops a feature only where it moves percepts between interchangeable classes: on the mountain
-car, dropping features this way lowered the mean return from 0.80 to 0.75 of the oracle's
-(seeds 0-4; 0.76 when compounds were kept), with half the selected features.
+by at most ``DROP_VALUE_TOLERANCE`` t. A learner that makes compounds drops a feature only
+where it moves percepts between interchangeable classes.
 
 Once learning ends, the merged classes are grown again as one decision tree that puts every
 seen percept in its class (``induced_splits``): the tests then serve the merged classes, not

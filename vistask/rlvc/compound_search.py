@@ -56,10 +56,7 @@ class ReductionRank:
 
     A relation is scored from the interactions of the images its bin of ``propose`` holds,
     for each action with ``min_count`` interactions on both sides, the best action's
-    reduction (-inf where no action has them). Ranked by frequency instead, the cap of
-    ``propose`` left out the rarer relations in more than half the classes searched on the
-    mountain car, and the car's return was lower (0.774 of the oracle's against 0.813 with 512
-    candidates a class, 1000 starts, seeds 0-4).
+    reduction (-inf where no action has them).
 
     Args:
         stats: (P, A, 3) float64 count, sum and sum of squares of the TD errors of each
@@ -140,9 +137,7 @@ def find_compound_splits(
             bins' percepts split the TD errors best (``ReductionRank``).
         to_beat: primitive splits of some classes (``find_splits``), the reductions that
             their compound splits must exceed.
-        threads: classes searched side by side (numpy lets go of the GIL in the search's
-            large array operations; on the car, two threads search 8 classes at 101 classes
-            1.8-2 times as fast as one, and the first database's large classes as fast).
+        threads: classes searched side by side in threads (>= 1, default 1).
 
     Returns:
         (split, compound) pairs (``split.feature`` is -1 until the compound gets a feature

@@ -368,10 +368,7 @@ class RLVC:
 
         The tests that made the classes were each chosen for one class's TD errors; the
         regrown tree's are chosen to tell the classes apart over all percepts, so unseen
-        percepts land in the right class more often (place navigation, 512 views a state,
-        seed 0: held-out views with a non-optimal greedy action 10.0% -> 6.9%). Regrowing
-        after every database instead, the later databases splitting the regrown classes,
-        lowered the maze's return from 0.927 to 0.898 of the oracle's (seeds 0-4).
+        percepts land in the right class more often.
         """
         if not isinstance(self.structure, ClassBDD):
             raise ValueError("regrow needs compaction=True (the classes of a BDD)")
@@ -417,9 +414,7 @@ class RLVC:
         structure classes a percept by its own tests, and the action is the best of the mean
         of their Q. One structure's classes depend on which of its splits happen to pass
         their tests first; its errors lie in other places than another's, and the mean Q
-        outvotes them (mountain car, seeds 0-4: 0.871 of the oracle's return regrown with 64
-        vocabulary groups, 0.911 acting on the fused classes; with 16 groups, 0.908 acting on
-        the fused classes and 0.922 on the committee).
+        outvotes them.
 
         Args:
             db: the interactions learned on, over this learner's features.
@@ -480,10 +475,7 @@ class RLVC:
         the class of the nearest of them (``SeenPercepts``) until the classes change.
         ``RLVCAgent(nearest_seen=True)`` does this when it ends learning.
 
-        A percept's class then does not hang on every test of one path: on place navigation's
-        held-out views (30,000 interactions, seeds 0-2) the error of the greedy action fell from
-        24.3% to 22.8% with the tree, from 23.1% to 22.8% with compaction; on the mountain
-        car the return stayed as it was (0.765 and 0.763 of the oracle's, seeds 0-4).
+        A percept's class then does not hang on every test of one path.
         """
         self.seen = SeenPercepts.of(self.structure, db.presence)
         return self
