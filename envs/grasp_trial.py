@@ -31,6 +31,7 @@ ground-truth poses (the ablation) uses: rendering costs more than a grasp.
 
 from __future__ import annotations
 
+import importlib
 import logging
 import math
 import os
@@ -593,3 +594,18 @@ def top_down_grasp(object_pose: np.ndarray, bounds: np.ndarray, depth: float = 0
     R_obj = Rotation.from_quat(object_pose[3:])
     rot = R_obj * Rotation.from_matrix(R_local)
     return np.r_[R_obj.apply(top) + object_pose[:3], rot.as_quat()]
+
+
+# Classes that moved to their own modules, which import this one: imported on first use.
+_MOVED = {
+    "EstimatedPose": "vistask.envs.estimated_pose",
+    "VectorGraspTrials": "vistask.envs.grasp_runners",
+    "RayGraspTrials": "vistask.envs.grasp_runners",
+}
+
+
+def __getattr__(name: str) -> Any:
+    """``EstimatedPose``, ``VectorGraspTrials`` and ``RayGraspTrials`` from their modules."""
+    if name in _MOVED:
+        return getattr(importlib.import_module(_MOVED[name]), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
