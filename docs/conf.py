@@ -6,6 +6,7 @@ os.environ.setdefault("MUJOCO_GL", "egl")  # the grasp env's modules import robo
 
 project = "vistask"
 author = "vistask developers"
+copyright = "vistask developers"
 extensions = [
     "myst_parser",
     "sphinx.ext.autodoc",
