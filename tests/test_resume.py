@@ -166,7 +166,14 @@ def test_train_rlvc_stopped_by_sigterm_resumes_with_the_results_of_a_straight_ru
     )
     a = json.loads((straight / "summary.json").read_text())
     b = json.loads((stopped / "summary.json").read_text())
-    for key in ("rlvc_return", "stages", "classes", "selected_features", "interactions"):
+    for key in (
+        "rlvc_return",
+        "stages",
+        "classes",
+        "selected_features",
+        "interactions",
+        "evaluations",
+    ):
         assert a[key] == b[key], key
     assert not (stopped / "checkpoint.pt").exists()
 
@@ -291,3 +298,45 @@ def test_learn_grasps_stopped_by_sigterm_resumes_bit_for_bit(tmp_path):
     with pytest.raises(ValueError, match=r"other settings \(cycles\)"):
         GraspExperiment(**{**tiny, "cycles": 3}).run(stopped)
     assert json.loads((stopped / "config.json").read_text())["cycles"] == 2
+
+
+def test_a_resumed_train_rlvc_keeps_the_evaluations_and_seconds_of_its_stopped_part(
+    tmp_path, monkeypatch
+):
+    import functools
+
+    from vistask.experiments import train_rlvc as module
+
+    monkeypatch.setattr(module, "EvaluateEvery", functools.partial(module.EvaluateEvery, every=3))
+    run = dict(
+        env_kwargs={"obstacles": [[0.45, 0.0, 0.55, 0.6]], "step": 0.2},
+        interactions=3000,
+        seed=2,
+        progress=False,
+        pictures=False,
+    )
+    straight = module.train_rlvc(**run, out=tmp_path / "straight")
+
+    # Stopped as the second database starts: after the first database's checkpoint.
+    starts = []
+
+    def stop_at_the_second_database(self):
+        starts.append(1)
+        if len(starts) == 2:
+            raise KeyboardInterrupt
+        original(self)
+
+    original = module.RunClock._on_rollout_start
+    with monkeypatch.context() as patch:
+        patch.setattr(module.RunClock, "_on_rollout_start", stop_at_the_second_database)
+        with pytest.raises(KeyboardInterrupt):
+            module.train_rlvc(**run, out=tmp_path / "stopped")
+    assert (tmp_path / "stopped" / "checkpoint.pt").exists()
+    before = json.loads((tmp_path / "stopped" / "elapsed.json").read_text())["seconds"]
+    resumed = module.train_rlvc(**run, out=tmp_path / "stopped")
+
+    assert straight["evaluations"] and resumed["evaluations"] == straight["evaluations"]
+    assert resumed["evaluations"][0][0] == 3  # stages counted over the whole run
+    assert resumed["rlvc_return"] == straight["rlvc_return"]
+    assert resumed["learn_seconds"] > before > 0
+    assert not (tmp_path / "stopped" / "elapsed.json").exists()

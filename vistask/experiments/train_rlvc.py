@@ -7,6 +7,7 @@ episode reward over seeded episodes.
 
 from __future__ import annotations
 
+import json
 import time
 from dataclasses import asdict
 from pathlib import Path
@@ -34,7 +35,15 @@ from vistask.features import draw_compound
 from vistask.features.vocabulary import VOCABULARY_GROUPS
 from vistask.rlvc import InteractionDatabase, Transitions
 from vistask.rlvc.solver import estimate_mdp, value_iteration
-from vistask.runs import check_same_settings, print_table, run_dir, write_summary
+from vistask.runs import (
+    append_record,
+    check_same_settings,
+    print_table,
+    read_json,
+    read_records,
+    run_dir,
+    write_summary,
+)
 
 PAPER = {"stages": 84, "classes": 205, "selected_features": 200, "vocabulary_size": 2298}
 EVAL_EVERY = 50  # stages between evaluations logged while learning
@@ -115,20 +124,32 @@ class Scorer:
 
 
 class EvaluateEvery(BaseCallback):
-    """Scores the greedy policy every ``every`` stages and logs ``eval/return`` (and
-    ``eval/return_ratio`` against the oracle) to the agent's TensorBoard run."""
+    """Scores the greedy policy every ``every`` stages (counted over the whole run, a resumed
+    one included) and logs ``eval/return`` (and ``eval/return_ratio`` against the oracle) to
+    the agent's TensorBoard run.
 
-    def __init__(self, scorer: Scorer, every: int = EVAL_EVERY) -> None:
+    Args:
+        scorer: scores an agent's greedy policy.
+        every: stages between two evaluations.
+        record: a JSON-lines file that every evaluation is appended to, so that a run resumed
+            after a stop keeps the evaluations made before it (``evaluations_of``).
+    """
+
+    def __init__(self, scorer: Scorer, every: int = EVAL_EVERY, record: Path | None = None) -> None:
         super().__init__()
-        self.scorer, self.every, self.seconds = scorer, every, 0.0
+        self.scorer, self.every, self.record, self.seconds = scorer, every, record, 0.0
         self.evaluations: list[tuple[int, float]] = []  # (stage, return)
 
     def _on_step(self) -> bool:
-        if self.n_calls % self.every == 0:
+        stage = len(self.model.learner.history)
+        if stage % self.every == 0:
             start = time.perf_counter()
             value = self.scorer(self.model)
             self.seconds += time.perf_counter() - start
-            self.evaluations.append((self.n_calls, value))
+            self.evaluations.append((stage, value))
+            if self.record is not None:
+                record = {"stage": stage, "return": value}
+                append_record(self.record, record | {"seconds": time.perf_counter() - start})
             self.logger.record("eval/return", value)
             if self.scorer.oracle_return:
                 self.logger.record("eval/return_ratio", value / self.scorer.oracle_return)
@@ -247,21 +268,60 @@ def velocity_readability(agent: RLVCAgent) -> dict:
     }
 
 
+class RunClock(BaseCallback):
+    """Writes the seconds a run has taken so far, its stopped parts included, to ``path``
+    (JSON) as each database starts: when a checkpoint was written just before."""
+
+    def __init__(self, path: Path, before: float) -> None:
+        super().__init__()
+        self.path, self.before, self.start = path, before, time.perf_counter()
+
+    @property
+    def seconds(self) -> float:
+        """Seconds of the whole run so far."""
+        return self.before + time.perf_counter() - self.start
+
+    def _on_rollout_start(self) -> None:
+        self.path.write_text(json.dumps({"seconds": self.seconds}) + "\n")
+
+    def _on_step(self) -> bool:
+        return True
+
+
 def learn_resumable(
-    agent: VisualAgent, interactions: int, out: Path, callback, progress: bool
-) -> VisualAgent:
+    agent: VisualAgent, interactions: int, out: Path, evaluations: EvaluateEvery, progress: bool
+) -> tuple[VisualAgent, float]:
     """``agent.learn(interactions)`` with a checkpoint in ``out/checkpoint.pt`` after each
     database; when a stopped run left one there, go on from it instead (the same result as a
-    run straight through). The checkpoint is removed once learning ends."""
-    checkpoint = out / "checkpoint.pt"
+    run straight through, ``evaluations`` of the stopped part included). The checkpoint is
+    removed once learning ends.
+
+    Returns:
+        The agent, and the seconds that the run's stopped parts took before this call.
+    """
+    checkpoint, clock_file = out / "checkpoint.pt", out / "elapsed.json"
+    evaluations.record = out / "evaluations.jsonl"
     if checkpoint.exists():
         agent = type(agent).load(checkpoint, agent.env, tensorboard_log=agent.tensorboard_log)
         interactions, reset = interactions - agent.num_timesteps, False
+        before = read_json(clock_file)["seconds"] if clock_file.exists() else 0.0
     else:
-        reset = True
-    agent.learn(interactions, callback, None, reset, progress, checkpoint=checkpoint)
+        reset, before = True, 0.0
+        evaluations.record.unlink(missing_ok=True)  # a finished run's, learned again
+    clock = RunClock(clock_file, before)
+    callbacks = [evaluations, clock]
+    agent.learn(interactions, callbacks, None, reset, progress, checkpoint=checkpoint)
     checkpoint.unlink(missing_ok=True)
-    return agent
+    clock_file.unlink(missing_ok=True)
+    return agent, before
+
+
+def evaluations_of(evaluations: EvaluateEvery) -> list[tuple[int, float]]:
+    """(stage, return) of every evaluation of the run, a stopped part's included, by stage."""
+    records = read_records(evaluations.record) if evaluations.record is not None else []
+    by_stage = {r["stage"]: r["return"] for r in records}
+    by_stage.update(dict(evaluations.evaluations))
+    return sorted(by_stage.items())
 
 
 def train_rlvc(
@@ -333,7 +393,7 @@ def train_rlvc(
         tensorboard_log=out / "tensorboard",
     )
     evaluations = EvaluateEvery(scorer)
-    agent = learn_resumable(agent, interactions, out, evaluations, progress)
+    agent, before = learn_resumable(agent, interactions, out, evaluations, progress)
     learned = time.perf_counter()
     final_return = scorer(agent)
     agent.save(out / "rlvc_agent.pt")
@@ -355,7 +415,7 @@ def train_rlvc(
         "interactions": agent.num_timesteps,
         "rewards_seen": agent.rewards_seen,
         "eval_starts": eval_starts,
-        "evaluations": evaluations.evaluations,
+        "evaluations": evaluations_of(evaluations),
     }
     task = scorer.task
     if task is not None:
@@ -387,8 +447,8 @@ def train_rlvc(
         if pictures:
             summary |= car_pictures(agent, task, out)
     summary |= {
-        "seconds": time.perf_counter() - start,
-        "learn_seconds": learned - start,
+        "seconds": before + time.perf_counter() - start,
+        "learn_seconds": before + learned - start,
         "seconds_split": {
             "collect": agent.timing["collect"],
             "feature_extraction": agent.timing["extract"],
