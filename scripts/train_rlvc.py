@@ -91,6 +91,8 @@ def main() -> None:
         run["interactions"] = args.interactions
     if args.resume is not None:
         saved = stopped_run_settings(parser, args.resume, "settings.json")
+        if (args.resume / "summary.json").exists():
+            parser.error(f"argument --resume: {args.resume} holds a finished run (summary.json)")
         args.compounds = saved.pop("compounds", False)
         args.compaction = saved.pop("compaction", False)
         args.compaction_tolerance = saved.pop("compaction_tolerance", None)

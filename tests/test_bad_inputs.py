@@ -128,3 +128,12 @@ def test_garbage_in_a_run_folder_is_named(tmp_path, monkeypatch, capsys):
     with pytest.raises(SystemExit):
         runpy.run_path(str(ROOT / "scripts" / "train_rlvc.py"), run_name="__main__")
     assert "settings.json is not valid JSON" in capsys.readouterr().err
+
+
+def test_resuming_a_finished_run_is_refused(tmp_path, monkeypatch, capsys):
+    (tmp_path / "settings.json").write_text('{"env_id": "vistask/VisualMaze-v0"}')
+    (tmp_path / "summary.json").write_text("{}")
+    monkeypatch.setattr(sys, "argv", ["train_rlvc.py", "--resume", str(tmp_path)])
+    with pytest.raises(SystemExit):
+        runpy.run_path(str(ROOT / "scripts" / "train_rlvc.py"), run_name="__main__")
+    assert "holds a finished run" in capsys.readouterr().err
