@@ -174,6 +174,7 @@ class RLVCAgent(VisualAgent):
         return self.learner
 
     def _new_learner(self) -> RLVC:
+        settings = self.compaction or Compaction()  # unused without compaction
         return RLVC(
             self.extractor.n_features,
             int(self.action_space.n),
@@ -182,8 +183,8 @@ class RLVCAgent(VisualAgent):
             self.min_count,
             use_compounds=self.compounds,
             compaction=self.compaction is not None,
-            compact_every=self.compaction.every if self.compaction else None,
-            compaction_tolerance=self.compaction.tolerance if self.compaction else 0.02,
+            compact_every=settings.every,
+            compaction_tolerance=settings.tolerance,
         )
 
     def _greedy(self, presence: torch.Tensor) -> np.ndarray:
@@ -225,11 +226,8 @@ class RLVCAgent(VisualAgent):
         if isinstance(compaction, dict):
             params["compaction"] = Compaction(**compaction)
         elif compaction:
-            params["compaction"] = Compaction(
-                legacy.get("compaction_tolerance", 0.02),
-                legacy.get("compact_every"),
-                legacy.get("structures", 1),
-            )
+            names = {"compaction_tolerance": "tolerance", "compact_every": "every"}
+            params["compaction"] = Compaction(**{names.get(k, k): v for k, v in legacy.items()})
         else:
             params["compaction"] = False
         return params

@@ -11,7 +11,7 @@ import torch
 from tqdm.auto import tqdm
 
 from vistask.agents.sb3_model import SB3Model
-from vistask.checks import check_at_least, check_integers
+from vistask.checks import check_at_least, check_discount, check_integers
 from vistask.saving import load_state, save_state
 
 
@@ -64,8 +64,7 @@ class TabularQAgent(SB3Model):
         if not 0 <= epsilon <= 1:
             raise ValueError(f"epsilon must be in [0, 1], got {epsilon!r}")
         gamma = 0.99 if gamma is None else gamma
-        if not 0 <= gamma < 1:
-            raise ValueError(f"gamma must be in [0, 1), got {gamma!r}")
+        check_discount(gamma)
         check_integers(seed=seed)
         check_at_least(0, seed=seed)
         self.env, self.tensorboard_log = env, tensorboard_log

@@ -16,7 +16,7 @@ import torch
 
 from vistask.agents.progress import LearnProgress
 from vistask.agents.sb3_model import SB3Model
-from vistask.checks import check_at_least, check_integers
+from vistask.checks import check_at_least, check_discount, check_integers
 from vistask.features import SiftExtractor, VisualFeatureExtractor
 from vistask.features.vocabulary import VOCABULARY_GROUPS
 from vistask.rlvc import InteractionDatabase, StageRecord, check_image_env, collect
@@ -97,8 +97,7 @@ class VisualAgent(SB3Model):
             raise ValueError(f"epsilon must be in [0, 1], got {epsilon!r}")
         if gamma is None:
             gamma = getattr(env.unwrapped, "gamma", 0.99) if env is not None else 0.99
-        if not 0 <= gamma < 1:
-            raise ValueError(f"gamma must be in [0, 1), got {gamma!r}")
+        check_discount(gamma)
         self.n_words, self.databases = int(n_words), int(databases)
         self.alpha, self.min_count, self.max_stages = float(alpha), int(min_count), max_stages
         self.epsilon, self.n_envs, self.max_keypoints = float(epsilon), n_envs, max_keypoints

@@ -40,3 +40,9 @@ def check_bools(**values: object) -> None:
     for name, value in values.items():
         if not isinstance(value, bool | np.bool_):
             raise TypeError(f"{name} must be True or False, got {value!r}")
+
+
+def check_discount(gamma: float) -> None:
+    """Raise ``ValueError`` unless ``gamma`` is a discount in [0, 1) (NaN is refused too)."""
+    if not 0 <= gamma < 1:
+        raise ValueError(f"gamma must be in [0, 1), got {gamma!r}")

@@ -148,8 +148,7 @@ class EvaluateEvery(BaseCallback):
             self.seconds += time.perf_counter() - start
             self.evaluations.append((stage, value))
             if self.record is not None:
-                record = {"stage": stage, "return": value}
-                append_record(self.record, record | {"seconds": time.perf_counter() - start})
+                append_record(self.record, {"stage": stage, "return": value})
             self.logger.record("eval/return", value)
             if self.scorer.oracle_return:
                 self.logger.record("eval/return_ratio", value / self.scorer.oracle_return)
@@ -317,11 +316,11 @@ def learn_resumable(
 
 
 def evaluations_of(evaluations: EvaluateEvery) -> list[tuple[int, float]]:
-    """(stage, return) of every evaluation of the run, a stopped part's included, by stage."""
-    records = read_records(evaluations.record) if evaluations.record is not None else []
-    by_stage = {r["stage"]: r["return"] for r in records}
-    by_stage.update(dict(evaluations.evaluations))
-    return sorted(by_stage.items())
+    """(stage, return) of every evaluation of the run, a stopped part's included, by stage
+    (a stage evaluated again after a stop counts once)."""
+    if evaluations.record is None:
+        return evaluations.evaluations
+    return sorted({r["stage"]: r["return"] for r in read_records(evaluations.record)}.items())
 
 
 def train_rlvc(
