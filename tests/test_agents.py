@@ -469,3 +469,11 @@ def test_an_agent_knows_the_env_arguments_it_learned_on(small_agent, tmp_path):
         warnings.simplefilter("error")
         agent = RLVCAgent.load(tmp_path / "agent.pt", env=small_maze())
     assert agent.env_kwargs == small_agent.env_kwargs and agent.env_kwargs["step"] == 0.2
+
+
+def test_saved_settings_of_either_form_give_the_same_compaction():
+    legacy = {"compaction": True, "compact_every": 5, "compaction_tolerance": 0.01, "structures": 3}
+    assert RLVCAgent._params_from_state(legacy)["compaction"] == Compaction(0.01, 5, 3)
+    saved = {"compaction": {"tolerance": 0.05, "every": None, "structures": 1}}
+    assert RLVCAgent._params_from_state(saved)["compaction"] == Compaction(0.05)
+    assert RLVCAgent._params_from_state({"compaction": None})["compaction"] is False
