@@ -9,9 +9,11 @@ import numpy as np
 import torch
 
 from vistask.agents.visual_agent import VisualAgent
+from vistask.checks import checked
 from vistask.rlvc import RLJC, JointClassifier
 
 
+@checked
 class RLJCAgent(VisualAgent):
     """Learns joint classes of percepts and continuous actions by RLJC (paper 2.5.3).
 

@@ -10,12 +10,13 @@ import numpy as np
 import torch
 
 from vistask.agents.visual_agent import VisualAgent
-from vistask.checks import check_at_least, check_bools, check_integers
+from vistask.checks import check_at_least, check_bools, check_integers, checked
 from vistask.features.vocabulary import VOCABULARY_GROUPS
 from vistask.parallel import check_not_importing_main
 from vistask.rlvc import RLVC, VisualClassifier
 
 
+@checked
 @dataclass(frozen=True)
 class Compaction:
     """How ``RLVCAgent(compaction=...)`` merges classes (paper section 2.5.2);
@@ -50,6 +51,7 @@ class Compaction:
         check_at_least(1, structures=self.structures)
 
 
+@checked
 class RLVCAgent(VisualAgent):
     """Learns visual classes of an image env by RLVC and acts greedily on them.
 
@@ -161,6 +163,10 @@ class RLVCAgent(VisualAgent):
             )
         check_integers(vocabulary_groups=vocabulary_groups)
         check_at_least(1, vocabulary_groups=vocabulary_groups)
+        if vocabulary_groups > n_words:
+            raise ValueError(
+                f"vocabulary_groups must be <= n_words ({n_words}), got {vocabulary_groups}"
+            )
         self.vocabulary_groups = int(vocabulary_groups)
 
     @property

@@ -11,7 +11,10 @@ from stable_baselines3.common.logger import Logger
 from stable_baselines3.common.utils import configure_logger
 from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv
 
+from vistask.checks import checked
 
+
+@checked
 class SB3Model:
     """Base of the agents: ``get_env``, ``get_vec_normalize_env`` and ``logger`` as SB3
     callbacks read them, and ``_start_learning``, which sets up the TensorBoard run and the

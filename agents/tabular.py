@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import Any
 
@@ -11,10 +12,18 @@ import torch
 from tqdm.auto import tqdm
 
 from vistask.agents.sb3_model import SB3Model
-from vistask.checks import check_at_least, check_discount, check_integers
+from vistask.checks import (
+    check_at_least,
+    check_discount,
+    check_integers,
+    check_same_env,
+    checked,
+    env_identity,
+)
 from vistask.saving import load_state, save_state
 
 
+@checked
 class TabularQAgent(SB3Model):
     """Epsilon-greedy tabular Q-learning with an SB3-like API.
 
@@ -48,6 +57,8 @@ class TabularQAgent(SB3Model):
         n_actions: int | None = None,
     ) -> None:
         if env is not None:
+            if n_states is not None or n_actions is not None:
+                raise ValueError("n_states and n_actions are the env's: pass them only without one")
             if not isinstance(env.observation_space, gym.spaces.Discrete):
                 raise TypeError(
                     "TabularQAgent needs a Discrete observation space, got "
@@ -59,6 +70,9 @@ class TabularQAgent(SB3Model):
             gamma = gamma if gamma is not None else getattr(env.unwrapped, "gamma", 0.99)
         if n_states is None or n_actions is None:
             raise ValueError("pass an env, or n_states and n_actions")
+        check_at_least(1, n_states=n_states, n_actions=n_actions)
+        if not math.isfinite(initial_q):
+            raise ValueError(f"initial_q must be finite, got {initial_q!r}")
         if not 0 < learning_rate <= 1:
             raise ValueError(f"learning_rate must be in (0, 1], got {learning_rate!r}")
         if not 0 <= epsilon <= 1:
@@ -68,6 +82,7 @@ class TabularQAgent(SB3Model):
         check_integers(seed=seed)
         check_at_least(0, seed=seed)
         self.env, self.tensorboard_log = env, tensorboard_log
+        self.env_identity = env_identity(env)  # the gym.make id and arguments learned on
         self.learning_rate, self.epsilon, self.seed = learning_rate, epsilon, seed
         self.gamma = float(gamma)
         self.q = np.full((n_states, n_actions), float(initial_q))
@@ -84,23 +99,28 @@ class TabularQAgent(SB3Model):
         reset_num_timesteps: bool = True,
         progress_bar: bool = False,
         checkpoint: str | Path | None = None,
-        checkpoint_every: int = 10_000,
+        checkpoint_every: int | None = None,
     ) -> TabularQAgent:
         """Run Q-learning for ``total_timesteps`` environment steps; SB3 callbacks are called
         after every step (returning False stops); ``rollout/ep_rew`` is logged per episode.
 
         With ``checkpoint``, the agent as it was when an episode began is written there every
-        ``checkpoint_every`` steps and when learning is interrupted (KeyboardInterrupt, or
-        SIGTERM turned into one by ``vistask.cli.interrupt_on_sigterm``), with the
-        random-generator states of the agent and the env. ``load(checkpoint, env)`` followed
-        by ``learn(total_timesteps - agent.num_timesteps, reset_num_timesteps=False)`` ends
+        ``checkpoint_every`` steps (default 10,000) and when learning is interrupted
+        (KeyboardInterrupt, or SIGTERM turned into one by ``vistask.cli.interrupt_on_sigterm``),
+        with the random-generator states of the agent and the env. ``load(checkpoint, env)``
+        followed by ``learn(total_timesteps - agent.num_timesteps, reset_num_timesteps=False)`` ends
         with the Q table of an uninterrupted ``learn(total_timesteps)``, bit for bit, on an
         env whose episodes depend only on its own generator and the actions.
         """
         if not isinstance(total_timesteps, int | np.integer) or total_timesteps < 0:
             raise ValueError(f"total_timesteps must be an integer >= 0, got {total_timesteps!r}")
-        if checkpoint_every < 1:
-            raise ValueError(f"checkpoint_every must be >= 1, got {checkpoint_every}")
+        if checkpoint is None and checkpoint_every is not None:
+            raise ValueError("checkpoint_every needs checkpoint: the file to write to")
+        checkpoint_every = 10_000 if checkpoint_every is None else checkpoint_every
+        check_at_least(1, checkpoint_every=checkpoint_every)
+        if self.env is None:
+            raise ValueError("env: the agent has none to learn on; pass one to load")
+        check_same_env(self.env_identity, self.env, learning=True)
         seeded = self._seeded  # the env is seeded once, at the agent's first step
         callback = self._start_learning(callback, tb_log_name, reset_num_timesteps)
         env, q = self.env, self.q
@@ -178,6 +198,7 @@ class TabularQAgent(SB3Model):
             "seed": self.seed,
             "num_timesteps": self.num_timesteps,
             "rng": self.rng.bit_generator.state,
+            "env_identity": self.env_identity,
         }
 
     def save(self, path: str | Path) -> None:
@@ -204,6 +225,9 @@ class TabularQAgent(SB3Model):
                 f"{env.observation_space} and {env.action_space}"
             )
         agent.env, agent.q, agent.num_timesteps = env, q, state["num_timesteps"]
+        agent.env_identity = state.get("env_identity")
+        if env is not None:
+            check_same_env(agent.env_identity, env, learning=False)
         agent._seeded = agent.num_timesteps > 0
         if "rng" in state:
             agent.rng.bit_generator.state = state["rng"]

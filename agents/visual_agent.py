@@ -4,9 +4,7 @@ callbacks and TensorBoard, ``predict`` on one image or a batch, ``save`` and ``l
 
 from __future__ import annotations
 
-import json
 import time
-import warnings
 from pathlib import Path
 from typing import Any, ClassVar
 
@@ -16,7 +14,15 @@ import torch
 
 from vistask.agents.progress import LearnProgress
 from vistask.agents.sb3_model import SB3Model
-from vistask.checks import check_at_least, check_discount, check_integers
+from vistask.checks import (
+    check_at_least,
+    check_discount,
+    check_integers,
+    check_same_env,
+    checked,
+    env_identity,
+    warn,
+)
 from vistask.features import SiftExtractor, VisualFeatureExtractor
 from vistask.features.vocabulary import VOCABULARY_GROUPS
 from vistask.rlvc import InteractionDatabase, StageRecord, check_image_env, collect
@@ -25,11 +31,6 @@ from vistask.saving import load_state, save_state
 MAX_BLOCKED = 2  # an epsilon-greedy episode ends after this many blocked moves in a row
 VOCABULARY_SAMPLE = 20_000  # descriptors that k-means fits the vocabulary on
 SIFT_CHUNK = 1024  # percepts of the first database extracted between two bar updates
-
-
-def spec_kwargs(spec: gym.envs.registration.EnvSpec) -> dict:
-    """An env spec's ``gym.make`` arguments as plain JSON values (others by their repr)."""
-    return json.loads(json.dumps(spec.kwargs, default=repr, sort_keys=True))
 
 
 def space_state(space: gym.spaces.Discrete | gym.spaces.Box) -> dict:
@@ -47,6 +48,7 @@ def space_from_state(state: dict) -> gym.spaces.Discrete | gym.spaces.Box:
     return gym.spaces.Box(np.array(state["low"], dtype), np.array(state["high"], dtype))
 
 
+@checked
 class VisualAgent(SB3Model):
     """Base of the agents that learn a decision structure over visual features.
 
@@ -155,23 +157,14 @@ class VisualAgent(SB3Model):
             self._check_same_env(env)
         self.env, self._vec_env = env, None
         self.observation_space, self.action_space = env.observation_space, env.action_space
-        if self.env_id is None and env.spec is not None:
-            self.env_id, self.env_kwargs = env.spec.id, spec_kwargs(env.spec)
+        if self.env_id is None and env_identity(env) is not None:
+            self.env_id, self.env_kwargs = env_identity(env)
 
-    def _check_same_env(self, env: gym.Env) -> None:
+    def _check_same_env(self, env: gym.Env, learning: bool = False) -> None:
         """Another env id or other ``gym.make`` arguments than the agent learned on: an error
-        when its databases would mix the two (a checkpoint), else a warning."""
-        if env.spec is None or self.env_id is None or self.env_kwargs is None:
-            return  # an env made without gym.make, or a file saved without its arguments
-        if (env.spec.id, spec_kwargs(env.spec)) == (self.env_id, self.env_kwargs):
-            return
-        message = (
-            f"the agent learned on {self.env_id} with {self.env_kwargs}; this env is "
-            f"{env.spec.id} with {spec_kwargs(env.spec)}"
-        )
-        if self.database is not None:
-            raise ValueError(f"{message}: learning on would mix their interactions")
-        warnings.warn(f"{message}: acting on another env than it learned on", stacklevel=3)
+        when it would learn on (a checkpoint's databases, or ``learn``), else a warning."""
+        learned = None if self.env_kwargs is None else (self.env_id, self.env_kwargs)
+        check_same_env(learned, env, learning or self.database is not None)
 
     def _check_spaces(self, env: gym.Env) -> None:
         space = env.observation_space
@@ -220,6 +213,9 @@ class VisualAgent(SB3Model):
                 f"total_timesteps must be an integer >= databases ({self.databases}), "
                 f"got {total_timesteps!r}"
             )
+        if self.env is None:
+            raise ValueError("env: the agent has none to learn on; pass one to set_env or load")
+        self._check_same_env(self.env, learning=True)
         name = tb_log_name or self.learner_class.__name__
         callback = self._start_learning(callback, name, reset_num_timesteps)
         plan, self._plan = self._plan, None
@@ -259,11 +255,10 @@ class VisualAgent(SB3Model):
             self._end_databases()
         self._end_learning(callback)
         if not self.rewards_seen:
-            warnings.warn(
+            warn(
                 f"no reward in the {len(self.database)} interactions learned on: every class "
                 "has the same value, so the greedy policy is arbitrary; collect more "
-                "interactions (total_timesteps) or check the env's rewards",
-                stacklevel=2,
+                "interactions (total_timesteps) or check the env's rewards"
             )
         return self
 
@@ -345,11 +340,10 @@ class VisualAgent(SB3Model):
                 f"the first database shows only {descriptors} SIFT descriptors: collect more "
                 "interactions (total_timesteps) or use an env with textured images"
             )
-        warnings.warn(
+        warn(
             f"the first database has {descriptors} SIFT descriptors, too few for "
             f"{self.n_words} words: fitting {descriptors // 2} (collect more interactions, "
-            "or lower n_words)",
-            stacklevel=4,
+            "or lower n_words)"
         )
         return descriptors // 2
 
@@ -383,17 +377,18 @@ class VisualAgent(SB3Model):
         None). Greedy on the learned classes; ``deterministic=False`` explores (see the
         class). ``state`` and ``episode_start`` are unused (the policy has no memory)."""
         self._check_learned()
+        shape = tuple(self.observation_space.shape)
+        expected = f"one image of shape {shape} or a batch (N, *{shape}) with N >= 1"
         if isinstance(observation, list | tuple):  # np.asarray would cast odd images silently
             for image in observation:
-                self._check_dtype(np.asarray(image))
+                image = np.asarray(image)
+                self._check_dtype(image)
+                if image.shape != shape:
+                    raise ValueError(f"observation must be {expected}, got an image {image.shape}")
         images = np.asarray(observation)
-        shape = tuple(self.observation_space.shape)
         single = images.shape == shape
-        if not single and images.shape[1:] != shape:
-            raise ValueError(
-                f"observation must be one image of shape {shape} or a batch (N, *{shape}), "
-                f"got shape {images.shape}"
-            )
+        if not single and (images.shape[1:] != shape or len(images) == 0):
+            raise ValueError(f"observation must be {expected}, got shape {images.shape}")
         self._check_dtype(images)
         presence = self._presence(images[None] if single else images)
         actions = self._greedy(presence) if deterministic else self._explore(presence, self._rng)
@@ -443,7 +438,9 @@ class VisualAgent(SB3Model):
         }
 
     @classmethod
-    def load(cls, path: str | Path, env: gym.Env | None = None, tensorboard_log: str | None = None):
+    def load(
+        cls, path: str | Path, env: gym.Env | None = None, tensorboard_log: str | Path | None = None
+    ):
         """Load a saved agent; with ``env``, check that its spaces are the ones it learned on
         (it can then ``learn`` more)."""
         state = load_state(path, cls.__name__)

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
+from vistask.checks import checked
 from vistask.envs.maze_oracle import EvaluationResult, Policy
 from vistask.envs.mountain_car import (
     FORCES,
@@ -30,6 +31,7 @@ from vistask.envs.mountain_car import (
 DEFAULT_MAX_STEPS = 100  # the time limit of vistask/VisualMountainCar-v0
 
 
+@checked
 @dataclass
 class CarOracle:
     """Optimal value function on a grid of true states and its greedy one-step-lookahead policy.
@@ -209,6 +211,7 @@ def rollout(
     return EvaluationResult(returns, steps)
 
 
+@checked
 def start_states(
     oracle: CarOracle | None = None,
     n: int = 100,
@@ -239,6 +242,7 @@ def start_states(
     return np.concatenate(found)[:n]
 
 
+@checked
 def evaluate_car_policy(
     env: VisualMountainCarEnv,
     policy: Policy,

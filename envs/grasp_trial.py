@@ -51,10 +51,13 @@ from robosuite.environments.manipulation.manipulation_env import ManipulationEnv
 from robosuite.models.tasks import ManipulationTask
 from scipy.spatial.transform import Rotation, Slerp
 
+from vistask.checks import check_at_least, check_positive, checked
 from vistask.envs.objects import (
     DEFAULT_DISTRACTORS,
+    MAX_DISTRACTORS,
     drop_pose,
     footprint_radius,
+    named_object_spec,
     object_spec,
     place_apart,
     rest_rotation,
@@ -153,6 +156,7 @@ class _GraspScene(ManipulationEnv):
         return False
 
 
+@checked
 class GraspTrialEnv(gym.Env):
     """One grasp trial per episode (see the module docstring).
 
@@ -209,20 +213,36 @@ class GraspTrialEnv(gym.Env):
         reach_tolerance: tuple[float, float] = (0.05, 0.4),
         render_mode: str | None = None,
     ) -> None:
-        target = object_spec(object_kind)
-        others = list(dict.fromkeys(k for k in distractors if object_spec(k).name != target.name))
-        if not 0 <= n_distractors <= min(4, len(others)):
+        target = named_object_spec("object_kind", object_kind)
+        if isinstance(distractors, str):
+            raise TypeError(f"distractors must be a list of object names, got {distractors!r}")
+        others = [k for k in distractors if named_object_spec("distractors", k).name != target.name]
+        others = list(dict.fromkeys(others))
+        if not 0 <= n_distractors <= min(MAX_DISTRACTORS, len(others)):
             raise ValueError(
-                f"n_distractors must be in 0..{min(4, len(others))} for distractors "
+                f"n_distractors must be in 0..{min(MAX_DISTRACTORS, len(others))} for distractors "
                 f"{others}, got {n_distractors}"
             )
         if not 0.0 <= tip_probability <= 1.0:
             raise ValueError(f"tip_probability must be in [0, 1], got {tip_probability}")
+        if isinstance(cameras, str):
+            raise TypeError(f"cameras must be a list of camera names, got {cameras!r}")
+        check_at_least(1, image_size=image_size, control_freq=control_freq)
+        if not 0 <= placement_range <= TABLE_SIZE[0] / 2:
+            raise ValueError(
+                f"placement_range must be in [0, {TABLE_SIZE[0] / 2}] metres (the table's half "
+                f"width), got {placement_range}"
+            )
+        check_positive(pregrasp_distance=pregrasp_distance, lift_height=lift_height)
+        if not 0 < lift_threshold < lift_height:
+            raise ValueError(
+                f"lift_threshold must be in (0, lift_height={lift_height}) metres, got "
+                f"{lift_threshold}"
+            )
+        check_positive(**{f"reach_tolerance[{i}]": v for i, v in enumerate(reach_tolerance)})
         unknown = [c for c in cameras if c not in CAMERAS]
         if unknown:
-            raise ValueError(f"unknown cameras {unknown}; known: {sorted(CAMERAS)}")
-        if image_size <= 0:
-            raise ValueError(f"image_size must be positive, got {image_size}")
+            raise ValueError(f"cameras: unknown {unknown}; known: {sorted(CAMERAS)}")
         self.object_kind = object_kind
         self.n_distractors = n_distractors
         self.cameras = tuple(cameras)

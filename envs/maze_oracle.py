@@ -16,6 +16,7 @@ import numpy as np
 import scipy.sparse as sp
 from gymnasium.utils import seeding
 
+from vistask.checks import checked
 from vistask.envs.visual_maze import (
     ACTION_ANGLES,
     ACTION_DIRECTIONS,
@@ -32,6 +33,7 @@ from vistask.envs.visual_maze import (
 Policy = Callable[[np.ndarray, np.ndarray], np.ndarray]
 
 
+@checked
 def direction_angles(n: int) -> np.ndarray:
     """(n,) evenly spaced move angles ``-π + 2π k / n``, k = 0..n-1.
 
@@ -47,6 +49,7 @@ def direction_angles(n: int) -> np.ndarray:
     return -np.pi + 2 * np.pi * np.arange(n) / n
 
 
+@checked
 @dataclass
 class MazeOracle:
     """Optimal value function and greedy policy on a grid of true positions.
@@ -226,11 +229,13 @@ def _cell_origins(geometry: MazeGeometry, grid: int, sub: int = 5) -> np.ndarray
     return np.where(free.any(axis=1)[:, None], candidates[np.arange(len(centres)), first], centres)
 
 
+@checked
 def start_positions(geometry: MazeGeometry, n: int = 100, seed: int = 12345) -> np.ndarray:
     """The fixed evaluation start set: (n, 2) free positions drawn with ``seed``."""
     return geometry.sample_free(np.random.default_rng(seed), n)
 
 
+@checked
 @dataclass
 class EvaluationResult:
     """Outcome of ``evaluate_policy``: ``returns`` (n,) discounted returns, ``steps`` (n,)."""
@@ -244,6 +249,7 @@ class EvaluationResult:
         return float(self.returns.mean())
 
 
+@checked
 def evaluate_policy(
     env: VisualMazeEnv,
     policy: Policy,

@@ -33,6 +33,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
+from vistask.checks import check_at_least, checked
 from vistask.envs.batched import BatchedCopies
 from vistask.envs.tapestry import PHOTOS, make_tapestry
 
@@ -98,6 +99,7 @@ def outcome(states: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return np.where(lost, -1.0, np.where(won, 1.0, 0.0)), lost | won
 
 
+@checked
 def hill_step(
     states: np.ndarray,
     forces: np.ndarray,
@@ -414,6 +416,7 @@ def _fixed_len(length: float) -> int:
 
 
 # -- environments ----------------------------------------------------------------------------
+@checked
 class VisualMountainCarEnv(gym.Env):
     """Drive a car up a hill, seeing only a window of the road and a velocity gauge.
 
@@ -458,6 +461,9 @@ class VisualMountainCarEnv(gym.Env):
             raise ValueError(f"gamma must be in [0, 1), got {gamma}")
         if render_mode not in (None, *self.metadata["render_modes"]):
             raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
+        check_at_least(0, road_seed=road_seed)
+        if tile is not None:
+            check_at_least(1, tile=tile)
         self.percepts = CarPercepts(height, road_width, pixels_per_unit, road_blur, tile, road_seed)
         self.gamma = float(gamma)
         self.render_mode = render_mode
@@ -511,6 +517,7 @@ class VisualMountainCarEnv(gym.Env):
         return VisualMountainCarVectorEnv.like(self, num_envs, max_episode_steps)
 
 
+@checked
 class VisualMountainCarVectorEnv(BatchedCopies):
     """``num_envs`` visual cars stepped as one batch: one ``hill_step`` for all.
 

@@ -308,3 +308,14 @@ def _place(rng, radii, gap, placed, draws) -> list[np.ndarray]:
 def footprint_radius(bounds, rot: Tensor) -> float:
     """Radius of the table area the box ``bounds`` turned by ``rot`` may cover."""
     return float(box_corners(bounds, rot)[:, :2].norm(dim=-1).max())
+
+
+MAX_DISTRACTORS = 4  # other objects on the grasp trials' table at most
+
+
+def named_object_spec(argument: str, name: str):
+    """``object_spec(name)``, its error naming the argument that gave the name."""
+    try:
+        return object_spec(name)
+    except (ValueError, TypeError) as error:
+        raise type(error)(f"{argument}: {error}") from None

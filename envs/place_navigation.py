@@ -33,6 +33,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
+from vistask.checks import checked
 from vistask.envs.batched import BatchedCopies
 from vistask.envs.place_scene import (
     TEST_SEED_OFFSET,
@@ -46,6 +47,7 @@ from vistask.envs.place_world import PLACE_ACTION_NAMES, PlaceWorld, check_int
 
 
 # -- environments --------------------------------------------------------------------------------
+@checked
 class PlaceNavigationEnv(gym.Env):
     """Walk through a small town to the goal place, seeing only a jittered camera view.
 
@@ -109,6 +111,8 @@ class PlaceNavigationEnv(gym.Env):
         if render_mode not in (None, *self.metadata["render_modes"]):
             raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
         self.gamma = self.world.gamma
+        if cache_dir is not None and not disk_cache:
+            raise ValueError("cache_dir acts only with disk_cache=True, which is off")
         self.cache_dir, self.disk_cache = cache_dir, bool(disk_cache)
         self.render_mode = render_mode
         self.observation_space = spaces.Box(0, 255, (image_size, image_size, 3), np.uint8)
@@ -206,6 +210,7 @@ class PlaceNavigationEnv(gym.Env):
         return PlaceNavigationVectorEnv.like(self, num_envs, max_episode_steps)
 
 
+@checked
 class PlaceNavigationVectorEnv(BatchedCopies):
     """``num_envs`` place-navigation envs stepped as one batch: one table look-up for all.
 

@@ -9,6 +9,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium.utils import seeding
 
+from vistask.checks import checked
 from vistask.envs.maze_oracle import EvaluationResult, Policy
 from vistask.envs.place_navigation import navigation_env
 from vistask.envs.place_scene import TEST_VIEWS_PER_STATE
@@ -18,6 +19,7 @@ from vistask.envs.place_world import FORWARD, LEFT, RIGHT, PlaceWorld, check_int
 DEFAULT_MAX_STEPS = 50  # the time limit of vistask/PlaceNavigation-v0
 
 
+@checked
 class PlaceOracle:
     """Shortest paths over (place, heading) states, by breadth-first search back from the goal.
 
@@ -181,6 +183,7 @@ class PlaceOracle:
         return result.mean / self.optimal_return(starts)
 
 
+@checked
 def evaluation_starts(env: gym.Env, n: int | None = None, seed: int = 12345) -> np.ndarray:
     """The fixed evaluation start set: (n, 2) states off the goal place; every one of them
     (state-index order) when ``n`` is None, else ``n`` drawn without replacement with

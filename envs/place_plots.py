@@ -5,11 +5,13 @@ from __future__ import annotations
 import gymnasium as gym
 import numpy as np
 
+from vistask.checks import checked
 from vistask.envs.place_navigation import navigation_env
 from vistask.envs.place_scene import draw_town
 from vistask.envs.place_world import check_int
 
 
+@checked
 def draw_world(env: gym.Env, state=None, pixels_per_metre: float = 12.0) -> np.ndarray:
     """Top-down map of the town of a place-navigation env (``draw_town``), with the agent at
     ``state`` if given.
@@ -21,6 +23,7 @@ def draw_world(env: gym.Env, state=None, pixels_per_metre: float = 12.0) -> np.n
     return draw_town(nav.world, nav.scene, state, pixels_per_metre)
 
 
+@checked
 def view_sheet(env: gym.Env, state, n: int = 8, gap: int = 2) -> np.ndarray:
     """A row of ``n`` jittered views of one state (place, heading): its bank's first views,
     rendered afresh (jitter seeds 0..n-1) beyond the bank's size.

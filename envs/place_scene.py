@@ -28,6 +28,7 @@ import cv2
 import mujoco
 import numpy as np
 
+from vistask.checks import checked
 from vistask.envs.place_world import HEADING_STEPS, HEADING_VECTORS, PlaceWorld, check_int
 from vistask.envs.tapestry import PHOTOS, load_photo
 
@@ -70,6 +71,7 @@ def photo_regions(k: int) -> list[tuple[int, int, int, int]]:
 
 
 # -- the scene -----------------------------------------------------------------------------------
+@checked
 @dataclass(frozen=True)
 class Jitter:
     """Ranges of the random changes of every view, each drawn uniformly.

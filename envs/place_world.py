@@ -12,6 +12,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from vistask.checks import checked
+
 PLACE_ACTION_NAMES: tuple[str, ...] = ("left", "right", "forward")
 LEFT, RIGHT, FORWARD = range(3)
 HEADING_NAMES: tuple[str, ...] = ("N", "E", "S", "W")
@@ -29,6 +31,7 @@ def check_int(name: str, value, low: int) -> int:
 
 
 # -- the place graph ---------------------------------------------------------------------------
+@checked
 @dataclass(frozen=True)
 class PlaceWorld:
     """The graph of places and its true dynamics, shared by the env, its vector env, the oracle

@@ -16,6 +16,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
+from vistask.checks import check_at_least, checked
 from vistask.envs.batched import BatchedCopies
 from vistask.envs.tapestry import make_tapestry, photo_canvas
 
@@ -39,6 +40,7 @@ DEFAULT_OBSTACLES: tuple[Rect, ...] = (
 DEFAULT_EXITS: tuple[Rect, ...] = ((0.00, 0.00, 0.10, 0.10), (0.90, 0.90, 1.00, 1.00))
 
 
+@checked
 def angle_directions(angles: np.ndarray) -> np.ndarray:
     """Unit move directions (N, 2) of (N,) angles in radians: (cos θ, sin θ) with y down.
 
@@ -153,6 +155,7 @@ def _connected(geometry: MazeGeometry, grid: int = 50) -> bool:
         reached = grown
 
 
+@checked
 @dataclass(frozen=True)
 class MazeGeometry:
     """Geometry and true dynamics of the maze, shared by the env and the oracle.
@@ -193,7 +196,7 @@ class MazeGeometry:
         )
         object.__setattr__(self, "exit_array", _rects_array(self.exits, "exits", self.size))
         if len(self.exit_array) == 0:
-            raise ValueError("the maze needs at least one exit")
+            raise ValueError("exits must hold at least one rectangle, got none")
 
     def is_free(self, points: np.ndarray) -> np.ndarray:
         """(N,) bool: inside the maze, not in an obstacle and not in an exit. points (N, 2)."""
@@ -252,6 +255,7 @@ class MazeGeometry:
         return np.concatenate(found)[:n]
 
 
+@checked
 class VisualMazeEnv(gym.Env):
     """Reach one of two exits of a noisy maze seeing only a window of a photo tapestry.
 
@@ -299,7 +303,9 @@ class VisualMazeEnv(gym.Env):
         layout_seed: int | None = None,
         render_mode: str | None = None,
     ) -> None:
+        check_at_least(0, tapestry_seed=tapestry_seed)
         if layout_seed is not None:
+            check_at_least(0, layout_seed=layout_seed)
             if obstacles is not DEFAULT_OBSTACLES or exits is not DEFAULT_EXITS:
                 raise ValueError("pass either layout_seed or obstacles and exits, not both")
             obstacles, exits = random_layout(layout_seed, size)
@@ -390,6 +396,7 @@ class VisualMazeEnv(gym.Env):
         return VisualMazeVectorEnv.like(self, num_envs, max_episode_steps)
 
 
+@checked
 class VisualMazeVectorEnv(BatchedCopies):
     """``num_envs`` visual mazes stepped as one batch: one ``MazeGeometry.move`` for all.
 
@@ -461,6 +468,7 @@ class VisualMazeVectorEnv(BatchedCopies):
         return self._percepts(), rewards, terminated, truncated, infos  # as TimeLimit
 
 
+@checked
 class VisualMazeContinuousEnv(VisualMazeEnv):
     """The visual maze with a real-valued move direction: continuous actions.
 
@@ -503,6 +511,7 @@ class VisualMazeContinuousEnv(VisualMazeEnv):
         return VisualMazeContinuousVectorEnv.like(self, num_envs, max_episode_steps)
 
 
+@checked
 class VisualMazeContinuousVectorEnv(VisualMazeVectorEnv):
     """``num_envs`` continuous-action mazes stepped as one batch (see ``VisualMazeVectorEnv``).
 
@@ -525,6 +534,7 @@ def to_pixels(env: VisualMazeEnv, points: np.ndarray) -> np.ndarray:
     return np.asarray(points) * env.pixels_per_unit
 
 
+@checked
 def draw_maze(env: VisualMazeEnv, agent: np.ndarray | None = None) -> np.ndarray:
     """Picture of the whole maze: tapestry, obstacles (solid), exits (crossed), agent, window."""
     g, m = env.geometry, env.margin

@@ -2,7 +2,7 @@
 
 import argparse
 
-from vistask.cli import json_object, non_negative_int, positive_int
+from vistask.cli import json_object, non_negative_int, positive_int, run_main
 from vistask.experiments.bench_features import bench_features
 
 
@@ -26,4 +26,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_main(main)

@@ -16,7 +16,7 @@ from pathlib import Path
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
-from vistask.cli import positive_int
+from vistask.cli import positive_int, run_main
 from vistask.experiments.grasp_ranking import bench_grasp_ranking
 
 
@@ -34,4 +34,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_main(main)

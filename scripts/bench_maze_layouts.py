@@ -7,7 +7,7 @@ python scripts/bench_maze_layouts.py --workers 2     # two runs side by side
 
 import argparse
 
-from vistask.cli import non_negative_int, positive_int
+from vistask.cli import non_negative_int, positive_int, ray_address, run_main
 from vistask.experiments.maze_layouts import bench_maze_layouts
 
 
@@ -15,11 +15,13 @@ def main() -> None:
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
-    parser.add_argument("--layouts", nargs="+", type=int, default=list(range(1, 11)))
+    parser.add_argument("--layouts", nargs="+", type=non_negative_int, default=list(range(1, 11)))
     parser.add_argument("--seed", type=non_negative_int, default=0, help="the agent's seed")
     parser.add_argument("--out", default=None, help="default runs/bench_maze_layouts-<time>")
     parser.add_argument("--workers", type=positive_int, default=1, help="runs side by side")
-    parser.add_argument("--address", default=None, help="Ray cluster (default: RAY_ADDRESS)")
+    parser.add_argument(
+        "--address", type=ray_address, default=None, help="Ray cluster (default: RAY_ADDRESS)"
+    )
     args = parser.parse_args()
     bench_maze_layouts(
         args.layouts, seed=args.seed, out=args.out, workers=args.workers, address=args.address
@@ -27,4 +29,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_main(main)

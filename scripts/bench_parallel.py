@@ -11,7 +11,7 @@ import os
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
-from vistask.cli import positive_int
+from vistask.cli import positive_int, run_main
 from vistask.experiments.bench_parallel import bench_parallel
 
 
@@ -30,4 +30,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_main(main)

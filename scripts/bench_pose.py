@@ -25,7 +25,7 @@ from pathlib import Path
 
 import torch
 
-from vistask.cli import non_negative_int, positive_int
+from vistask.cli import non_negative_int, positive_int, ray_address, run_main, torch_device
 from vistask.experiments.pose import PoseBenchmark
 from vistask.experiments.pose_scenes import CONDITIONS, METHODS
 from vistask.experiments.pose_summary import write_results
@@ -68,12 +68,16 @@ def main() -> None:
     parser.add_argument(
         "--threads", type=positive_int, default=1, help="torch CPU threads (1: no contention)"
     )
-    parser.add_argument("--device", default="cpu", help="device of NBP (e.g. cuda)")
+    parser.add_argument(
+        "--device", type=torch_device, default="cpu", help="device of NBP (e.g. cuda)"
+    )
     parser.add_argument(
         "--pictures", type=non_negative_int, default=1, help="pictures per object, condition"
     )
     parser.add_argument("--workers", type=positive_int, default=1, help="scenes side by side")
-    parser.add_argument("--address", default=None, help="Ray cluster to run the scenes on")
+    parser.add_argument(
+        "--address", type=ray_address, default=None, help="Ray cluster to run the scenes on"
+    )
     args = parser.parse_args()
     out = run_dir("bench_pose", args.out)
     torch.set_num_threads(args.threads)
@@ -95,4 +99,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_main(main)

@@ -6,7 +6,7 @@ python scripts/bench_rljc.py --seeds 2 --interactions 10000
 
 import argparse
 
-from vistask.cli import json_object, positive_int
+from vistask.cli import json_object, positive_int, run_main
 from vistask.experiments.bench_rljc import bench_rljc
 
 
@@ -23,4 +23,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_main(main)

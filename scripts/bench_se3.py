@@ -12,7 +12,7 @@ from pathlib import Path
 
 import torch
 
-from vistask.cli import positive_int
+from vistask.cli import positive_int, run_main, torch_device
 from vistask.experiments.bench_se3 import run_benchmark
 from vistask.runs import print_table, run_dir, write_summary
 
@@ -22,7 +22,7 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=None, help="output directory")
     parser.add_argument(
         "--device",
-        choices=["cpu", "cuda"],
+        type=torch_device,
         default=None,
         help="only this device (default: CPU, plus CUDA when available)",
     )
@@ -50,4 +50,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_main(main)

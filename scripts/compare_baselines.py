@@ -22,7 +22,15 @@ import sys
 
 import torch
 
-from vistask.cli import interrupt_on_sigterm, json_object, non_negative_int, positive_int
+from vistask.cli import (
+    interrupt_on_sigterm,
+    json_object,
+    non_negative_int,
+    positive_int,
+    ray_address,
+    run_main,
+    torch_device,
+)
 from vistask.experiments.compare import compare
 from vistask.experiments.comparison import DEFAULT_BUDGETS, METHODS, Comparison
 
@@ -49,7 +57,9 @@ def main() -> None:
         help="tabular baseline's cells per dimension of the true state, or 'rlvc': as many "
         "cells as RLVC's classes",
     )
-    parser.add_argument("--device", default="cpu", help="torch device of the SB3 networks")
+    parser.add_argument(
+        "--device", type=torch_device, default="cpu", help="torch device of the SB3 networks"
+    )
     parser.add_argument(
         "--threads",
         type=positive_int,
@@ -61,6 +71,7 @@ def main() -> None:
     )
     parser.add_argument(
         "--address",
+        type=ray_address,
         default=None,
         help="Ray cluster address, or 'local' (default: RAY_ADDRESS, else no Ray)",
     )
@@ -95,4 +106,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_main(main)

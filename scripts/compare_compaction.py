@@ -10,7 +10,7 @@ python scripts/compare_compaction.py --env vistask/PlaceNavigation-v0 \
 
 import argparse
 
-from vistask.cli import json_object, non_negative_int, positive_int, unit_fraction
+from vistask.cli import json_object, non_negative_int, positive_int, run_main, unit_fraction
 from vistask.experiments.compare_compaction import METHODS, compare_compaction
 
 
@@ -59,4 +59,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_main(main)

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import torch
 
-from vistask.cli import non_negative_int, positive_int
+from vistask.cli import non_negative_int, positive_int, run_main, torch_device
 from vistask.experiments.pose import PoseBenchmark
 from vistask.experiments.pose_scenes import CONDITIONS
 from vistask.experiments.pose_summary import write_results
@@ -36,7 +36,9 @@ def main() -> None:
     parser.add_argument(
         "--threads", type=positive_int, default=1, help="torch CPU threads (1: no contention)"
     )
-    parser.add_argument("--device", default="cpu", help="device of NBP (e.g. cuda)")
+    parser.add_argument(
+        "--device", type=torch_device, default="cpu", help="device of NBP (e.g. cuda)"
+    )
     parser.add_argument("--pictures", type=non_negative_int, default=5, help="scenes drawn")
     args = parser.parse_args()
     out = run_dir("estimate_pose", args.out)
@@ -64,4 +66,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_main(main)

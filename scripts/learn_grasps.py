@@ -25,11 +25,14 @@ from pathlib import Path
 os.environ.setdefault("MUJOCO_GL", "egl")
 
 from vistask.cli import (
+    check_resume_alone,
     interrupt_on_sigterm,
     non_negative_float,
     non_negative_int,
     positive_int,
     probability,
+    ray_address,
+    run_main,
     stopped_run_settings,
 )
 from vistask.experiments.grasps import HYPOTHESES, POSE_SOURCES, GraspExperiment, format_table
@@ -78,7 +81,10 @@ def main() -> None:
         help="simulators side by side",
     )
     parser.add_argument(
-        "--address", default=None, help="Ray cluster for the simulators (default: local processes)"
+        "--address",
+        type=ray_address,
+        default=None,
+        help="Ray cluster for the simulators (default: local processes)",
     )
     parser.add_argument(
         "--c-rel",
@@ -102,6 +108,8 @@ def main() -> None:
     )
     parser.add_argument("--quick", action="store_true", help="2 cycles of 10, 10 eval trials")
     args = parser.parse_args()
+    if args.resume is not None:
+        check_resume_alone(parser, args, keep=("num_envs", "address"))
     if args.cycles * args.trials_per_cycle > 300:
         parser.error("the budget is at most 300 trials per object")
     if args.quick:
@@ -134,4 +142,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_main(main)

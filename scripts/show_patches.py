@@ -20,7 +20,7 @@ import torch
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 
-from vistask.cli import positive_int
+from vistask.cli import positive_int, run_main
 from vistask.envs.tabletop import benchmark_scenes, make_scene, object_patches
 from vistask.runs import print_table, run_dir, write_summary
 from vistask.vision import view_patches
@@ -36,7 +36,9 @@ def main() -> None:
     parser.add_argument(
         "--scenes", type=positive_int, default=5, help="scenes to time (seeds 0..N-1)"
     )
-    parser.add_argument("--distractors", type=int, default=None, help="0-4 (default: random)")
+    parser.add_argument(
+        "--distractors", type=int, choices=range(5), default=None, help="0-4 (default: random)"
+    )
     parser.add_argument("--cameras", nargs="+", default=["front"])
     parser.add_argument("--image-size", type=positive_int, default=256)
     parser.add_argument("--threads", type=positive_int, default=1, help="torch CPU threads")
@@ -81,4 +83,4 @@ def _scatter(patches, path: Path, title: str) -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_main(main)

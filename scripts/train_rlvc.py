@@ -20,10 +20,12 @@ import gymnasium as gym
 
 import vistask.envs  # noqa: F401  (registers the environments)
 from vistask.cli import (
+    check_resume_alone,
     interrupt_on_sigterm,
     json_object,
     non_negative_int,
     positive_int,
+    run_main,
     stopped_run_settings,
     unit_fraction,
 )
@@ -90,6 +92,7 @@ def main() -> None:
     if args.interactions is not None:
         run["interactions"] = args.interactions
     if args.resume is not None:
+        check_resume_alone(parser, args, keep=("no_progress",))
         saved = stopped_run_settings(parser, args.resume, "settings.json")
         if (args.resume / "summary.json").exists():
             parser.error(f"argument --resume: {args.resume} holds a finished run (summary.json)")
@@ -122,4 +125,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_main(main)

@@ -4,6 +4,7 @@ wrong, before any work starts."""
 from __future__ import annotations
 
 import json
+import math
 import runpy
 import sys
 from pathlib import Path
@@ -137,3 +138,162 @@ def test_resuming_a_finished_run_is_refused(tmp_path, monkeypatch, capsys):
     with pytest.raises(SystemExit):
         runpy.run_path(str(ROOT / "scripts" / "train_rlvc.py"), run_name="__main__")
     assert "holds a finished run" in capsys.readouterr().err
+
+
+# -- every public entry point checks the types its annotations name ---------------------------
+PACKAGES = ("agents", "rlvc", "se3", "objects", "grasp", "vision", "features", "envs")
+
+
+def test_every_public_class_and_function_checks_its_argument_types():
+    import importlib
+    import inspect
+
+    unchecked = []
+    for package in PACKAGES:
+        module = importlib.import_module(f"vistask.{package}")
+        for name in module.__all__:
+            member = getattr(module, name)
+            ours = getattr(member, "__module__", "").startswith("vistask")  # not roma's
+            if (
+                (inspect.isclass(member) or inspect.isfunction(member))
+                and ours
+                and not getattr(member, "__checked__", False)
+            ):
+                unchecked.append(f"vistask.{package}.{name}")
+    assert not unchecked, f"without @checked: {unchecked}"
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    st.sampled_from(["n_words", "databases", "min_count", "max_stages", "n_envs", "seed"]),
+    st.one_of(st.floats(allow_nan=True), st.text(max_size=3), st.booleans(), st.complex_numbers()),
+)
+def test_an_integer_setting_of_another_type_is_refused_naming_it(name, value):
+    from vistask.agents import RLVCAgent
+
+    with pytest.raises((TypeError, ValueError), match=name):
+        RLVCAgent(None, **{name: value})
+
+
+@settings(max_examples=80, deadline=None)
+@given(
+    st.sampled_from(["alpha", "epsilon", "gamma", "contrast_threshold"]),
+    st.floats(allow_nan=True, allow_infinity=True),
+)
+def test_a_float_setting_is_kept_in_its_range_or_refused_naming_it(name, value):
+    from vistask.agents import RLVCAgent
+
+    try:
+        agent = RLVCAgent(None, **{name: value})
+    except ValueError as error:
+        assert name in str(error)
+        return
+    kept = getattr(agent, name)
+    assert (
+        math.isfinite(kept)
+        and {
+            "alpha": 0 < kept < 1,
+            "epsilon": 0 <= kept <= 1,
+            "gamma": 0 <= kept < 1,
+            "contrast_threshold": kept > 0,
+        }[name]
+    )
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    st.floats(allow_nan=True, allow_infinity=True),
+    st.floats(allow_nan=True, allow_infinity=True),
+    st.lists(st.floats(allow_nan=True, allow_infinity=True, width=64), min_size=5, max_size=5),
+)
+def test_a_density_is_finite_and_positive_at_its_particles_or_refused_naming_why(
+    sigma_t, sigma_r, weights
+):
+    points = random_poses(5, generator=torch.Generator().manual_seed(0)).double()
+    try:
+        density = SE3KDE(points, torch.tensor(weights), sigma_t=sigma_t, sigma_r=sigma_r)
+    except ValueError as error:
+        assert any(name in str(error) for name in ("sigma_t", "sigma_r", "weights"))
+        return
+    values = density.evaluate(points)
+    assert torch.isfinite(values).all() and (values > 0).all()
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.floats(min_value=-1e300, max_value=1e300), st.integers(0, 4))
+def test_a_far_particle_is_refused_or_leaves_the_others_intact(offset, column):
+    points = random_poses(4, generator=torch.Generator().manual_seed(1)).double()
+    moved = points.clone()
+    moved[0, column % 3] += offset
+    try:
+        density = SE3KDE(moved, sigma_t=0.1)
+    except ValueError as error:
+        assert "points" in str(error) and ("overflow" in str(error) or "precision" in str(error))
+        return
+    assert torch.isfinite(density.evaluate(points)).all()
+
+
+# -- one test per kind of mistake ---------------------------------------------------------------
+def test_options_that_act_only_with_another_are_refused_without_it():
+    with pytest.raises(ValueError, match="compact_every acts only with compaction"):
+        RLVC(40, 4, 0.9, compact_every=5)
+    with pytest.raises(ValueError, match="compound_tolerances acts only with use_compounds"):
+        RLVC(40, 4, 0.9, compound_tolerances=(0.5,))
+    with pytest.raises(ValueError, match="checkpoint_every needs checkpoint"):
+        TabularQAgent(gym.make("FrozenLake-v1")).learn(10, checkpoint_every=5)
+    assert RLVC(40, 4, 0.9, compaction=True, compact_every=5).compact_every == 5
+
+
+def test_densities_that_do_not_overlap_have_no_product():
+    from vistask.se3 import product
+
+    near = SE3KDE(random_poses(5), sigma_t=0.05)
+    far = SE3KDE(random_poses(5) + torch.tensor([100.0, 0, 0, 0, 0, 0, 0]), sigma_t=0.01)
+    with pytest.raises(ValueError, match=r"do not overlap: densities\[1\]"):
+        product([near, far], 50)
+    assert len(product([near, near], 50)) == 50
+
+
+def test_weights_near_the_largest_float_still_give_a_density():
+    points = random_poses(5).double()
+    density = SE3KDE(points, torch.full((5,), 1e308, dtype=torch.float64))
+    torch.testing.assert_close(density.weights, torch.full((5,), 0.2, dtype=torch.float64))
+
+
+def test_an_agent_refuses_to_learn_on_another_env_than_it_learned_on(tmp_path):
+    lake = TabularQAgent(gym.make("FrozenLake-v1"), seed=0).learn(50)
+    lake.save(tmp_path / "lake.pt")
+    other = gym.make("FrozenLake-v1", is_slippery=False)
+    with pytest.warns(UserWarning, match="acting on another env"):
+        loaded = TabularQAgent.load(tmp_path / "lake.pt", env=other)
+    with pytest.raises(ValueError, match=r"is_slippery.*start a new agent"):
+        loaded.learn(10)
+    TabularQAgent.load(tmp_path / "lake.pt", env=gym.make("FrozenLake-v1")).learn(10)
+
+
+def test_a_script_refuses_a_resume_with_other_settings_in_one_line(tmp_path, monkeypatch, capsys):
+    (tmp_path / "settings.json").write_text('{"env_id": "vistask/VisualMaze-v0"}')
+    monkeypatch.setattr(sys, "argv", ["train_rlvc.py", "--resume", str(tmp_path), "--seed", "4"])
+    with pytest.raises(SystemExit):
+        runpy.run_path(str(ROOT / "scripts" / "train_rlvc.py"), run_name="__main__")
+    assert "drop --seed" in capsys.readouterr().err
+
+
+def test_a_refusal_inside_a_script_is_one_line_naming_it(tmp_path, monkeypatch, capsys):
+    env_kwargs = '{"layout_seed": -1}'
+    monkeypatch.setattr(sys, "argv", ["train_rlvc.py", "--env-kwargs", env_kwargs])
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(SystemExit) as stopped:
+        runpy.run_path(str(ROOT / "scripts" / "train_rlvc.py"), run_name="__main__")
+    err = capsys.readouterr().err
+    assert stopped.value.code == 2 and "Traceback" not in err
+    assert "train_rlvc.py: error: layout_seed must be >= 0, got -1" in err
+
+
+def test_the_sweep_of_wrong_inputs_over_the_api_finds_every_answer_clear(tmp_path):
+    from vistask.experiments.wrong_input_cases import api_cases
+    from vistask.experiments.wrong_inputs import answer_call, summary
+
+    result = summary([answer_call(case) for case in api_cases(tmp_path)])
+    assert result["cases"] >= 300
+    assert result["outcomes"]["clear"] == result["cases"], result["not_clear"]

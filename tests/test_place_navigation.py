@@ -356,7 +356,7 @@ def test_pictures(env):
     ],
 )
 def test_bad_kwargs_raise_clear_errors(kwargs, match):
-    with pytest.raises(ValueError, match=match):
+    with pytest.raises((TypeError, ValueError), match=match):
         PlaceNavigationEnv(**kwargs)
 
 

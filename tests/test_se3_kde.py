@@ -295,7 +295,7 @@ def test_clear_errors() -> None:
         SE3KDE(good[:, :6], sigma_t=0.01, sigma_r=0.3)
     with pytest.raises(ValueError, match="shape"):
         density.evaluate(good[:, :4])
-    with pytest.raises(ValueError, match="total weight"):
+    with pytest.raises(ValueError, match="must not all be zero"):
         SE3KDE(good, torch.zeros(5), sigma_t=0.01, sigma_r=0.3)
     with pytest.raises(ValueError, match="non-negative"):
         SE3KDE(good, torch.tensor([1.0, -1, 1, 1, 1]), sigma_t=0.01, sigma_r=0.3)

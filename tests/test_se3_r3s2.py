@@ -101,5 +101,5 @@ def test_save_load_and_errors(tmp_path) -> None:
         R3S2KDE(torch.tensor([[0.0, 0, 0, 0, 0, 3.0]]), sigma_t=0.1, sigma_r=0.1)
     with pytest.raises(ValueError, match="shape"):
         density.evaluate(torch.zeros(4, 7))
-    with pytest.raises(ValueError, match="total weight"):
+    with pytest.raises(ValueError, match="must not all be zero"):
         R3S2KDE(_edges(3, 1), torch.zeros(3), sigma_t=0.1, sigma_r=0.1)

@@ -6,9 +6,16 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import signal
+import socket
+import sys
 from collections.abc import Callable
 from pathlib import Path
+
+import gymnasium as gym
+
+from vistask.checks import check_device
 
 
 def _checked(text: str, convert: Callable[[str], float], ok: Callable, accepted: str):
@@ -71,6 +78,17 @@ def stopped_run_settings(parser: argparse.ArgumentParser, folder: Path, name: st
     """The settings a stopped run wrote to ``folder/name``, for ``--resume folder``; argparse's
     own error when the folder holds no stopped run."""
     path = Path(folder) / name
+    record = Path(folder) / "run.json"
+    script = Path(parser.prog).stem
+    if record.is_file():
+        try:
+            made_by = json.loads(record.read_text()).get("script")
+        except (json.JSONDecodeError, AttributeError):
+            made_by = None
+        if made_by not in (None, script):
+            parser.error(
+                f"argument --resume: {folder} holds a run of {made_by!r}, not of {script!r}"
+            )
     if not path.is_file():
         parser.error(f"argument --resume: {folder} holds no stopped run (no {name})")
     try:
@@ -80,3 +98,61 @@ def stopped_run_settings(parser: argparse.ArgumentParser, folder: Path, name: st
     if not isinstance(settings, dict):
         parser.error(f"argument --resume: {path} holds no settings (not a JSON object)")
     return settings
+
+
+def torch_device(text: str) -> str:
+    """A torch device this machine has (``cpu``, ``cuda``, ``cuda:1``)."""
+    try:
+        check_device(text)
+    except ValueError as error:
+        raise argparse.ArgumentTypeError(str(error)) from None
+    return text
+
+
+def ray_address(text: str) -> str:
+    """A Ray cluster to reach: ``local``, ``auto``, or ``[ray://]host:port`` that answers."""
+    if text in ("local", "auto"):
+        return text
+    host, _, port = text.removeprefix("ray://").rpartition(":")
+    if not host or not port.isdigit():
+        raise argparse.ArgumentTypeError(
+            f"must be 'local', 'auto' or [ray://]host:port, got {text}"
+        )
+    try:
+        socket.create_connection((host, int(port)), timeout=5).close()
+    except OSError as error:
+        raise argparse.ArgumentTypeError(f"cannot reach {text} ({error})") from None
+    return text
+
+
+def run_main(main: Callable[[], object]) -> None:
+    """Run a script's ``main``; an input refused on the way (``ValueError``, ``TypeError``,
+    ``FileNotFoundError``, a gymnasium error) ends it with one line, as argparse's errors do
+    (exit status 2). ``VISTASK_TRACEBACK=1`` shows the traceback instead."""
+    try:
+        main()
+    except (ValueError, TypeError, FileNotFoundError, gym.error.Error) as error:
+        if os.environ.get("VISTASK_TRACEBACK"):
+            raise
+        print(f"{Path(sys.argv[0]).name}: error: {error}", file=sys.stderr)
+        print("(VISTASK_TRACEBACK=1 shows where it was raised)", file=sys.stderr)
+        sys.exit(2)
+
+
+def check_resume_alone(
+    parser: argparse.ArgumentParser, args: argparse.Namespace, keep: tuple[str, ...] = ()
+) -> None:
+    """With ``--resume``, argparse's error for any flag given that the stopped run's settings
+    fix (all but ``--resume`` and the flags named in ``keep``, by their dest)."""
+    given = [
+        action.option_strings[0]
+        for action in parser._actions
+        if action.option_strings
+        and action.dest not in ("help", "resume", *keep)
+        and getattr(args, action.dest) != action.default
+    ]
+    if given:
+        parser.error(
+            f"argument --resume: a resumed run goes on with the settings it started with; "
+            f"drop {' '.join(given)}"
+        )

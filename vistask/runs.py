@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import sys
 import time
 from pathlib import Path
@@ -20,6 +21,8 @@ def run_dir(script: str, out: str | Path | None = None) -> Path:
     another's results.
     """
     path = Path(out) if out else Path("runs") / f"{script}-{time.strftime('%Y%m%d-%H%M%S')}"
+    if path.exists() and not path.is_dir():
+        raise ValueError(f"out: {path} is a file, not a folder for the run")
     path.mkdir(parents=True, exist_ok=True)
     record = path / "run.json"
     run = read_json(record) if record.exists() else {"script": script, "commands": []}
@@ -29,7 +32,7 @@ def run_dir(script: str, out: str | Path | None = None) -> Path:
             "output folder"
         )
     run["commands"].append([Path(sys.argv[0]).name, *sys.argv[1:]])
-    record.write_text(json.dumps(run, indent=2) + "\n")
+    write_json(record, run)
     return path
 
 
@@ -62,12 +65,21 @@ def _plain(value: Any) -> Any:
     return value
 
 
+def write_json(path: str | Path, value: Any) -> None:
+    """Write ``value`` as indented JSON (NumPy values converted) in one step: a run killed
+    meanwhile leaves the old file or the new one, never a part."""
+    path = Path(path)
+    partial = path.with_name(path.name + ".partial")
+    partial.write_text(json.dumps(_plain(value), indent=2, allow_nan=False) + "\n")
+    os.replace(partial, path)
+
+
 def write_summary(path: str | Path, summary: dict) -> Path:
     """Write ``summary`` as indented JSON (NumPy scalars and arrays converted)."""
     path = Path(path)
     if path.is_dir():
         path = path / "summary.json"
-    path.write_text(json.dumps(_plain(summary), indent=2, allow_nan=False) + "\n")
+    write_json(path, summary)
     return path
 
 
@@ -83,8 +95,11 @@ def read_records(path: str | Path) -> list[dict]:
     path = Path(path)
     if not path.exists():
         return []
+    text = path.read_text()
+    if not text.endswith("\n"):  # a line cut short by a kill: its record is made again
+        text = text[: text.rfind("\n") + 1]
     records = []
-    for number, line in enumerate(path.read_text().splitlines(), 1):
+    for number, line in enumerate(text.splitlines(), 1):
         try:
             records.extend([json.loads(line)] if line else [])
         except json.JSONDecodeError:
@@ -110,9 +125,11 @@ def check_same_settings(path: str | Path, settings: dict) -> None:
     path = Path(path)
     settings = json.loads(json.dumps(_plain(settings)))
     if not path.exists():
-        path.write_text(json.dumps(settings, indent=2) + "\n")
+        write_json(path, settings)
         return
     before = read_json(path)
+    if not isinstance(before, dict):
+        raise ValueError(f"{path} holds no settings (not a JSON object): remove or repair it")
     if before != settings:
         changed = sorted(
             k for k in settings.keys() | before.keys() if before.get(k) != settings.get(k)

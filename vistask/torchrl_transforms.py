@@ -20,6 +20,7 @@ import torch
 from torchrl.data import Binary, Categorical, Composite, TensorSpec
 from torchrl.envs.transforms import Transform
 
+from vistask.checks import checked
 from vistask.features import Compound, VisualFeatureExtractor
 from vistask.wrappers import Classifier
 
@@ -62,6 +63,7 @@ class _ImageTransform(Transform):
         return observation_spec
 
 
+@checked
 class VisualFeatureTransform(_ImageTransform):
     """Image -> (F + C,) int8 presence vector of the F visual features (words) and of C
     compound features (``Binary`` spec).
@@ -95,6 +97,7 @@ class VisualFeatureTransform(_ImageTransform):
         return presence.reshape(*batch, -1).to(pixels.device)
 
 
+@checked
 class VisualClassTransform(_ImageTransform):
     """Image -> visual class id in ``range(classifier.n_classes)`` (``Categorical`` spec).
 

@@ -10,6 +10,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
+from vistask.checks import checked
 from vistask.features import Compound, VisualFeatureExtractor, check_image_space
 
 if TYPE_CHECKING:
@@ -25,6 +26,7 @@ class Classifier(Protocol):
         """The class id of one image."""
 
 
+@checked
 class VisualFeatures(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
     """Image observation -> ``MultiBinary(F + C)`` presence vector of the F visual features
     (words) and of C compound features.
@@ -59,6 +61,7 @@ class VisualFeatures(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
         return self.extractor.presence([observation], self.compounds)[0].numpy().astype(np.int8)
 
 
+@checked
 class VisualClasses(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
     """Image observation -> ``Discrete(m)`` visual class, e.g. learned by RLVC.
 
@@ -85,6 +88,7 @@ class VisualClasses(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
         return int(self.classifier(observation))
 
 
+@checked
 class JointClasses(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
     """Image observation -> ``MultiBinary(J)``: the joint classes that RLJC learned which are
     compatible with the image (its perceptual cell). Each joint class carries a box of actions

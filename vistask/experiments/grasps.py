@@ -193,8 +193,14 @@ class GraspExperiment:
         seed: int = 0,
         address: str | None = None,
     ) -> None:
-        if not objects:
-            raise ValueError(f"objects must name at least one object kind, got {objects!r}")
+        if not objects or isinstance(objects, str):
+            raise ValueError(f"objects must list at least one object kind, got {objects!r}")
+        from vistask.envs.objects import MAX_DISTRACTORS, named_object_spec
+
+        for kind in objects:
+            named_object_spec("objects", kind)
+        if n_distractors > MAX_DISTRACTORS:
+            raise ValueError(f"n_distractors must be in 0..{MAX_DISTRACTORS}, got {n_distractors}")
         if hypothesis not in HYPOTHESES:
             raise ValueError(f"hypothesis must be one of {HYPOTHESES}, got {hypothesis!r}")
         if pose_source not in POSE_SOURCES:

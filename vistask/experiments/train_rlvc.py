@@ -7,7 +7,6 @@ episode reward over seeded episodes.
 
 from __future__ import annotations
 
-import json
 import time
 from dataclasses import asdict
 from pathlib import Path
@@ -42,6 +41,7 @@ from vistask.runs import (
     read_json,
     read_records,
     run_dir,
+    write_json,
     write_summary,
 )
 
@@ -281,7 +281,7 @@ class RunClock(BaseCallback):
         return self.before + time.perf_counter() - self.start
 
     def _on_rollout_start(self) -> None:
-        self.path.write_text(json.dumps({"seconds": self.seconds}) + "\n")
+        write_json(self.path, {"seconds": self.seconds})
 
     def _on_step(self) -> bool:
         return True

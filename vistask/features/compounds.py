@@ -34,11 +34,14 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from vistask.checks import checked
+
 # Pairs farther apart than this many scales of their first part are not related (the bins of
 # ``propose`` pack into one int64 key).
 MAX_REACH = 256
 
 
+@checked
 @dataclass
 class Occurrences:
     """Where features occur in ``n_images`` images: occurrence k is feature ``feature[k]`` (of
@@ -147,6 +150,7 @@ class Occurrences:
         return presence
 
 
+@checked
 @dataclass(frozen=True)
 class Compound:
     """Part ``second`` at ``offset`` (dx, dy) from part ``first``, within ``tolerance``; offset
@@ -222,6 +226,7 @@ def compound_occurrences(occ: Occurrences, compound: Compound, feature: int) -> 
     )
 
 
+@checked
 def add_compound_occurrences(
     occ: Occurrences, compounds: list[Compound], first_id: int
 ) -> Occurrences:
@@ -246,6 +251,7 @@ def add_compound_occurrences(
     return occ.merge(*made)
 
 
+@checked
 def propose(
     occ: Occurrences,
     tolerances: Sequence[float] = (1.0,),
@@ -386,6 +392,7 @@ def presence_of_candidates(occ: Occurrences, candidates: list[Compound]) -> torc
     return presence
 
 
+@checked
 def draw_compound(
     image: np.ndarray, occ: Occurrences, compound: Compound, scale: int = 4
 ) -> np.ndarray:

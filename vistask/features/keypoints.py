@@ -18,12 +18,15 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from vistask.checks import checked
+
 SIFT_NORM = 512.0  # OpenCV scales SIFT descriptors to about this Euclidean norm
 # Distinct views whose keypoints ``SiftExtractor`` keeps when percepts are made of views: about
 # 13 kB each at 24 keypoints; the mountain car shows 1528 distinct views in 44,000 percepts.
 VIEW_CACHE = 10_000
 
 
+@checked
 @dataclass
 class Keypoints:
     """Keypoints of one image: ``xy`` (K, 2) pixel (x, y), ``descriptors`` (K, D) and
@@ -37,6 +40,7 @@ class Keypoints:
         return len(self.xy)
 
 
+@checked
 def check_image(image: np.ndarray) -> np.ndarray:
     """Validate an RGB uint8 image (H, W, 3) or a grey one (H, W) and return it."""
     if not isinstance(image, np.ndarray) or image.dtype != np.uint8:
@@ -49,6 +53,7 @@ def check_image(image: np.ndarray) -> np.ndarray:
     return image
 
 
+@checked
 def check_image_space(space, user: str) -> None:
     """Raise a clear error unless the Gymnasium ``space`` holds (H, W, 3) RGB or (H, W) grey
     uint8 images."""
@@ -101,6 +106,7 @@ def _allowed_threads() -> int:
     return int(allowed) if allowed.isdigit() and int(allowed) > 0 else os.cpu_count() or 1
 
 
+@checked
 class SiftExtractor:
     """SIFT keypoints and descriptors (optionally with colour), one image or a batch.
 

@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from vistask.checks import check_at_least, checked
 from vistask.features.compounds import Compound, Occurrences, add_compound_occurrences
 from vistask.features.keypoints import Keypoints, SiftExtractor, extract_once
 from vistask.kmeans import kmeans, nearest_centroids
@@ -147,6 +148,7 @@ def _assign(
     return rows, index[rows, column]
 
 
+@checked
 class VisualFeatureExtractor:
     """Image -> set of visual features present (and where), through a learned vocabulary.
 
@@ -248,6 +250,9 @@ class VisualFeatureExtractor:
                 nearest prototype of descriptors near a group border.
             seed: seed of the subset and of the k-means initialisation.
         """
+        check_at_least(2, n_words=n_words)  # one word is present in every percept
+        check_at_least(1, max_descriptors=max_descriptors, iters=iters, probes=probes)
+        check_at_least(0, groups=groups, seed=seed)
         keypoints = keypoints or SiftExtractor()
         if detected is None:
             if not images:

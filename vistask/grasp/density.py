@@ -17,9 +17,11 @@ from __future__ import annotations
 
 import torch
 
+from vistask.checks import checked
 from vistask.se3 import SE3KDE, check_poses, compose
 
 
+@checked
 def transform_density(density: SE3KDE, pose: torch.Tensor) -> SE3KDE:
     """Express an object-frame density in the world for one known object pose.
 
@@ -44,6 +46,7 @@ def transform_density(density: SE3KDE, pose: torch.Tensor) -> SE3KDE:
     )
 
 
+@checked
 def instance_grasp_density(
     pose_belief: SE3KDE,
     grasp_density: SE3KDE,

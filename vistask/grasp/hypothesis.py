@@ -21,10 +21,12 @@ import roma
 import torch
 import torch.nn.functional as F
 
+from vistask.checks import check_at_least, checked
 from vistask.se3 import SE3KDE, make_poses
 from vistask.vision import Patches
 
 
+@checked
 def frames_to_poses(positions: torch.Tensor, x: torch.Tensor, z: torch.Tensor) -> torch.Tensor:
     """Gripper poses from positions and closing / approach axes.
 
@@ -50,6 +52,7 @@ def _colour_distance(colors: torch.Tensor) -> torch.Tensor:
     return torch.minimum(torch.cdist(flat, flat), torch.cdist(flat, swapped)) / math.sqrt(2)
 
 
+@checked
 def feature_grasps(
     patches: Patches,
     max_colour_distance: float = 0.15,
@@ -115,6 +118,7 @@ def feature_grasps(
     return poses.to(patches.positions.dtype)
 
 
+@checked
 def feature_hypothesis_density(
     patches: Patches,
     sigma_t: float = 0.01,
@@ -142,6 +146,7 @@ def feature_hypothesis_density(
     return SE3KDE(grasps.float(), sigma_t=sigma_t, sigma_r=sigma_r)
 
 
+@checked
 def scripted_teacher_grasps(bounds: torch.Tensor, depth: float = 0.02) -> torch.Tensor:
     """A scripted expert's grasps of an upright object from its object-frame bounding box.
 
@@ -181,6 +186,7 @@ def scripted_teacher_grasps(bounds: torch.Tensor, depth: float = 0.02) -> torch.
     return frames_to_poses(torch.stack(positions), torch.stack(xs), torch.stack(zs)).float()
 
 
+@checked
 def demonstration_density(
     teacher_grasps: torch.Tensor,
     n_per_demo: int = 20,
@@ -208,6 +214,8 @@ def demonstration_density(
     teacher = torch.as_tensor(teacher_grasps, dtype=torch.float32)
     if teacher.dim() != 2 or teacher.shape[1] != 7 or len(teacher) == 0:
         raise ValueError(f"teacher_grasps must have shape (K, 7), got {tuple(teacher.shape)}")
+    check_at_least(1, n_per_demo=n_per_demo)
+    check_at_least(0, noise_t=noise_t, noise_r=noise_r)
     reps = teacher.repeat_interleave(n_per_demo, dim=0)
     t = reps[:, :3] + noise_t * torch.randn(len(reps), 3, generator=generator)
     rotvec = noise_r * torch.randn(len(reps), 3, generator=generator)

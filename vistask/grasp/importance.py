@@ -10,10 +10,11 @@ from dataclasses import dataclass, field
 
 import torch
 
-from vistask.checks import check_at_least
-from vistask.se3 import SE3KDE
+from vistask.checks import check_at_least, checked
+from vistask.se3 import SE3KDE, check_poses
 
 
+@checked
 def importance_weights(q: torch.Tensor, c: float) -> torch.Tensor:
     """(N,) proposal density values -> (N,) importance weights 1 / (q + c)."""
     if c < 0 or not math.isfinite(c):
@@ -23,6 +24,7 @@ def importance_weights(q: torch.Tensor, c: float) -> torch.Tensor:
     return 1.0 / (q + c)
 
 
+@checked
 @dataclass
 class Trials:
     """Executed trials, object frame.
@@ -43,12 +45,19 @@ class Trials:
     def add(self, grasps: torch.Tensor, success: torch.Tensor, cycle: int | torch.Tensor) -> None:
         """Append (n, 7) grasps and (n,) successes drawn from proposal ``cycle`` (one index
         for all, or (n,) indices)."""
+        grasps = check_poses(grasps, "grasps", batched=True)
+        if success.shape != (len(grasps),):
+            raise ValueError(
+                f"success must have shape ({len(grasps)},), one per grasp, got "
+                f"{tuple(success.shape)}"
+            )
         self.grasps = torch.cat([self.grasps, grasps.float().cpu()])
         self.success = torch.cat([self.success, success.bool().cpu()])
         cycle = torch.as_tensor(cycle, dtype=torch.long).cpu().expand(len(success))
         self.cycle = torch.cat([self.cycle, cycle])
 
 
+@checked
 def mixture_proposal(trials: Trials, proposals: Sequence[SE3KDE]) -> torch.Tensor:
     """(N,) the normalised density sum_k (n_k / N) q_k at every trial's grasp."""
     if len(trials) == 0:
@@ -94,6 +103,7 @@ cube too lowered the best rated of 10 from 0.914 to 0.882 on average: its trials
 fewer grasps, and the success rates have fewer kinds of grasps to rank (docs/results.md)."""
 
 
+@checked
 def local_success_rates(
     trials: Trials,
     weights: torch.Tensor,
@@ -138,6 +148,7 @@ def trial_weights(trials: Trials, proposals: Sequence[SE3KDE], c_rel: float) -> 
     return importance_weights(q, c_rel * float(q.mean()))
 
 
+@checked
 def empirical_density(
     trials: Trials,
     proposals: Sequence[SE3KDE],
@@ -166,7 +177,7 @@ def empirical_density(
     Raises:
         ValueError: ``reliability`` negative or NaN.
     """
-    check_at_least(0, reliability=reliability)
+    check_at_least(0, reliability=reliability, c_rel=c_rel)
     if not trials.success.any():
         return None
     w = trial_weights(trials, proposals, c_rel)

@@ -43,7 +43,7 @@ from typing import Any
 
 import torch
 
-from vistask.checks import check_at_least
+from vistask.checks import check_at_least, checked
 from vistask.grasp.importance import (
     EXPLORATION_POWER,
     RANKING_WIDTH,
@@ -56,8 +56,10 @@ from vistask.grasp.importance import (
 from vistask.grasp.reach import TrialRunner, Workspace, draw_reachable
 from vistask.saving import load_state, save_state
 from vistask.se3 import SE3KDE
+from vistask.se3.kernels import check_bandwidth
 
 
+@checked
 @dataclass
 class CycleStats:
     """Figures of one learning cycle."""
@@ -74,6 +76,7 @@ class CycleStats:
     trials_per_minute: float
 
 
+@checked
 class GraspLearner:
     """Trial-and-error learning of an object-frame grasp density.
 
@@ -104,11 +107,13 @@ class GraspLearner:
         if exploration is None:
             exploration = min(EXPLORATION_POWER, reliability)
         check_at_least(0, c_rel=c_rel, reliability=reliability, exploration=exploration)
+        sigma_t = hypothesis.sigma_t if sigma_t is None else sigma_t
+        sigma_r = hypothesis.sigma_r if sigma_r is None else sigma_r
+        check_bandwidth(sigma_t, sigma_r)
         self.hypothesis = hypothesis
         self.workspace = workspace
         self.c_rel = c_rel
-        self.sigma_t = hypothesis.sigma_t if sigma_t is None else sigma_t
-        self.sigma_r = hypothesis.sigma_r if sigma_r is None else sigma_r
+        self.sigma_t, self.sigma_r = sigma_t, sigma_r
         self.reliability = float(reliability)
         self.exploration = float(exploration)
         self.proposal = hypothesis
@@ -280,6 +285,7 @@ STEP_FIELDS = ("reason", "contact", "grasped", "lift_height")
 (``last_info``) that ``run_trials`` copies into its per-trial records, where present."""
 
 
+@checked
 def run_trials(
     density: SE3KDE,
     runner: TrialRunner,
@@ -380,6 +386,7 @@ def _fields(info: dict[str, Any], keys: Sequence[str], j: int) -> dict[str, Any]
     return out
 
 
+@checked
 def evaluate_density(
     density: SE3KDE,
     runner: TrialRunner,

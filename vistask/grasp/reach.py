@@ -10,10 +10,11 @@ from typing import Any, Protocol
 import roma
 import torch
 
-from vistask.checks import check_at_least
+from vistask.checks import check_at_least, checked
 from vistask.se3 import SE3KDE, check_poses, compose
 
 
+@checked
 class TrialRunner(Protocol):
     """Executes batches of grasp trials (one per parallel environment)."""
 
@@ -28,6 +29,7 @@ class TrialRunner(Protocol):
         ...
 
 
+@checked
 @dataclass(frozen=True)
 class Workspace:
     """A geometric reachability filter for world-frame grasps (a cheap stand-in for IK).
@@ -56,12 +58,19 @@ class Workspace:
     pregrasp_distance: float = 0.08
     clearance: float = 0.005
 
+    def __post_init__(self) -> None:
+        if not 0 <= self.reach[0] < self.reach[1]:
+            raise ValueError(f"reach must be (near, far) with 0 <= near < far, got {self.reach}")
+        check_at_least(0, pregrasp_distance=self.pregrasp_distance, clearance=self.clearance)
 
+
+@checked
 def approach_directions(grasps: torch.Tensor) -> torch.Tensor:
     """(..., 7) grasp poses -> (..., 3) approach directions (the gripper's +z)."""
     return roma.unitquat_to_rotmat(grasps[..., 3:])[..., :, 2]
 
 
+@checked
 def reachable(grasps: torch.Tensor, workspace: Workspace) -> torch.Tensor:
     """(N, 7) world grasps -> (N,) bool: passes the workspace's reachability tests."""
     grasps = check_poses(grasps, "grasps", batched=True)
@@ -82,6 +91,7 @@ def reachable(grasps: torch.Tensor, workspace: Workspace) -> torch.Tensor:
     )
 
 
+@checked
 def draw_reachable(
     density: SE3KDE,
     object_poses: torch.Tensor,

@@ -22,7 +22,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from vistask.checks import check_at_least, check_positive
+from vistask.checks import check_at_least, check_positive, checked
 from vistask.se3 import apply, rigid_refit
 from vistask.vision import RGBDView
 from vistask.vision.camera import pixel_grid
@@ -77,6 +77,7 @@ def evenly_spaced(points: Tensor, k: int) -> Tensor:
     return points[torch.linspace(0, len(points) - 1, k).long()]
 
 
+@checked
 class DepthCheck:
     """Depth images against which object poses are refined and checked.
 

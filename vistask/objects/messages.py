@@ -11,6 +11,7 @@ import roma
 import torch
 from torch import Tensor
 
+from vistask.checks import checked
 from vistask.objects.depth import evenly_spaced
 from vistask.objects.model import ObjectModel, appearance_descriptors
 from vistask.se3 import SE3KDE, compose, inverse, kernels, rigid_refit
@@ -31,6 +32,7 @@ def _normals(frames: Tensor) -> Tensor:
     return roma.quat_action(frames[..., 3:], z, is_normalized=True)
 
 
+@checked
 @dataclass
 class Evidence:
     """Observations bound to one primitive feature.
@@ -44,6 +46,7 @@ class Evidence:
     colors: Tensor
 
 
+@checked
 @dataclass
 class NBPResult:
     """Output of ``NBP.infer``.
@@ -75,6 +78,7 @@ class NBPResult:
         return self.poses[0]
 
 
+@checked
 def scene_evidence(
     model: ObjectModel,
     patches: Patches,
@@ -118,6 +122,7 @@ def matched_count(evidence: dict[int, Evidence | None]) -> int:
     return sum(len(e.colors) for e in evidence.values() if e is not None)
 
 
+@checked
 def push_up(
     density: SE3KDE,
     potential: SE3KDE,
@@ -150,6 +155,7 @@ def push_up(
     return SE3KDE(votes, weights, sigma_t=sigma_t, sigma_r=sigma_r)
 
 
+@checked
 def multiply(
     messages: list[SE3KDE],
     n: int,
@@ -192,6 +198,7 @@ def multiply(
     return SE3KDE(x, w.to(device), sigma_t=first.sigma_t, sigma_r=first.sigma_r)
 
 
+@checked
 @dataclass
 class SceneMatch:
     """Model instances against scene observations, for top-down checks of object poses.
@@ -286,6 +293,7 @@ class SceneMatch:
         return poses
 
 
+@checked
 def top_down(
     model: ObjectModel,
     result: NBPResult,

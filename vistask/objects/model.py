@@ -25,6 +25,7 @@ import torch
 from scipy.cluster.vq import kmeans2
 from torch import Tensor
 
+from vistask.checks import checked
 from vistask.objects.depth import evenly_spaced
 from vistask.objects.pair_votes import PairTable
 from vistask.saving import load_state, save_state
@@ -43,6 +44,7 @@ PAIR_TABLE_PATCHES = 512
 square, 0.07 s to build for 500 patches and 0.8 s for 1339 (the cereal box)."""
 
 
+@checked
 @dataclass
 class Feature:
     """One node of the model's Markov tree.
@@ -73,6 +75,7 @@ APPEARANCE = "side shares and relative brightness"
 """The appearance descriptor a model is learned with (saved models are checked against it)."""
 
 
+@checked
 def appearance_descriptors(colors: Tensor) -> Tensor:
     """(N, 2, 3) side colours (darker first) -> (N, 6) appearance descriptors that other light
     changes little.
@@ -104,6 +107,7 @@ def appearance_descriptors(colors: Tensor) -> Tensor:
     return torch.cat([shares, brighter], dim=1)
 
 
+@checked
 @dataclass
 class ObjectModel:
     """A learned hierarchical object model (see the module docstring).

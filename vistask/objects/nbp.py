@@ -39,7 +39,7 @@ import roma
 import torch
 from torch import Tensor
 
-from vistask.checks import check_at_least, check_positive
+from vistask.checks import check_at_least, check_device, check_positive, checked
 from vistask.objects.depth import SCREEN_POINTS, DepthCheck, evenly_spaced
 from vistask.objects.messages import (
     Evidence,
@@ -141,6 +141,7 @@ def link_groups(positions: Tensor, link: float) -> Tensor:
         label = new
 
 
+@checked
 class NBP:
     """Pose estimation by nonparametric belief propagation over an object model's tree.
 
@@ -192,8 +193,8 @@ class NBP:
 
     Raises:
         ValueError: n_particles, n_modes or mode_starts below 1, a bandwidth or color_sigma
-            not positive, floor, refine_sigma_t, min_matches or chroma_sigma negative, or
-            cutoff not positive.
+            not positive, floor outside [0, 1], a count or chroma_sigma negative, or cutoff not
+            positive.
     """
 
     def __init__(
@@ -236,7 +237,10 @@ class NBP:
             turns=turns,
             min_matches=min_matches,
             chroma_sigma=chroma_sigma,
+            refine_iters=refine_iters,
         )
+        if not floor <= 1:
+            raise ValueError(f"floor must be in [0, 1], got {floor}")
         if cutoff is not None and not cutoff > 0:
             raise ValueError(
                 f"cutoff must be positive (multiples of sigma_t) or None, got {cutoff}"
@@ -285,7 +289,7 @@ class NBP:
         Raises:
             ValueError: empty scene, or no scene patch matches the model's appearance.
         """
-        device = torch.device(device or "cpu")
+        device = check_device(device or "cpu")
         gen = torch.Generator(device=device).manual_seed(seed)
         patches = patches.to(device)
         sigmas = (self.evidence_sigma_t, self.evidence_sigma_r)

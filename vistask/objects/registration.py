@@ -16,11 +16,12 @@ import roma
 import torch
 from torch import Tensor
 
-from vistask.checks import check_at_least, check_positive
+from vistask.checks import check_at_least, check_positive, checked
 from vistask.objects.model import ObjectModel
 from vistask.vision import Patches
 
 
+@checked
 @dataclass
 class RegistrationResult:
     """Estimated pose (7,) of the source in the target's frame, with Open3D's scores."""
@@ -83,6 +84,7 @@ def view_cloud(
     return as_tensor(pcd.points), as_tensor(pcd.normals), as_tensor(pcd.colors)
 
 
+@checked
 class Open3DRegistration:
     """The baseline pose estimator at full strength: FPFH features, global registration by
     several RANSAC runs and Fast Global Registration, each candidate refined by multi-scale

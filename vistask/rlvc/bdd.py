@@ -28,11 +28,12 @@ merged class split again.
 
 from __future__ import annotations
 
-import warnings
 from collections.abc import Callable
 
 import numpy as np
 import torch
+
+from vistask.checks import checked, warn
 
 try:
     from dd import cudd as _dd
@@ -58,6 +59,7 @@ def _name(feature: int) -> str:
     return f"f{feature}"
 
 
+@checked
 class ClassBDD:
     """Visual classes as disjoint Boolean functions of feature presence, in a shared BDD.
 
@@ -128,11 +130,10 @@ class ClassBDD:
             # cofactor (``let``, which drops features).
             if "NULL" not in str(error) and "cofactor failed" not in str(error):
                 raise
-            warnings.warn(
+            warn(
                 f"the visual classes outgrew the BDD's memory budget "
                 f"({self.max_memory / 2**20:.0f} MiB) at {self.n_classes} classes: they go on "
-                f"as their history of splits and merges, which classifies as the BDD did ({error})",
-                stacklevel=3,
+                f"as their history of splits and merges, which classifies as the BDD did ({error})"
             )
             self._leave_bdd()
 

@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from vistask.checks import checked
 from vistask.features import Compound, VisualFeatureExtractor, check_image
 from vistask.rlvc.bdd import ClassBDD
 from vistask.rlvc.joint_tree import JointTree
@@ -17,6 +18,7 @@ from vistask.rlvc.tree import ClassTree
 from vistask.saving import load_state, save_state
 
 
+@checked
 class VisualClassifier:
     """Image -> visual class: a feature extractor, the compounds learned on its vocabulary, and
     the class structure over both (a ``ClassTree`` or a ``ClassBDD``), with the percepts the
@@ -101,6 +103,7 @@ class VisualClassifier:
         return cls.from_state_dict(load_state(path, "VisualClassifier"), extractor)
 
 
+@checked
 class JointClassifier:
     """Image -> the joint classes compatible with it (its perceptual cell), and the classes'
     action boxes: the discretisation that RLJC learned.

@@ -15,9 +15,11 @@ from dataclasses import dataclass
 
 import torch
 
+from vistask.checks import checked
 from vistask.rlvc.bdd import ClassBDD
 
 
+@checked
 @dataclass
 class Committee:
     """Class structures and their classes' Q, acting on the mean of their Q.

@@ -28,6 +28,7 @@ import numpy as np
 import torch
 from sklearn.tree import DecisionTreeClassifier
 
+from vistask.checks import checked
 from vistask.rlvc.solver import state_values
 
 DROP_VALUE_TOLERANCE = 10.0  # in tolerances; see the module's docstring
@@ -41,6 +42,7 @@ DROP_RATE = 0.15
 ACCEPTABLE_BLOCK = 1024  # rows of ``acceptable`` compared at once
 
 
+@checked
 def acceptable(q: torch.Tensor, tolerance: float, value_tolerance: float) -> torch.Tensor:
     """(S, A) Q -> (S, S) bool: class j's greedy action loses at most ``tolerance`` in class i,
     and their values differ by at most ``value_tolerance``.
@@ -78,6 +80,7 @@ def acceptable(q: torch.Tensor, tolerance: float, value_tolerance: float) -> tor
     return out
 
 
+@checked
 def interchangeable(q: torch.Tensor, tolerance: float) -> torch.Tensor:
     """(S, A) Q -> (S, S) bool: classes i and j are interchangeable within ``tolerance``.
 
@@ -95,6 +98,7 @@ def interchangeable(q: torch.Tensor, tolerance: float) -> torch.Tensor:
     return each_way & each_way.T
 
 
+@checked
 def merge_groups(q: torch.Tensor, tolerance: float) -> torch.Tensor:
     """(S, A) Q -> (S,) long group of every class, groups numbered 0..G-1.
 

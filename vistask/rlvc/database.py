@@ -17,6 +17,7 @@ import gymnasium as gym
 import numpy as np
 import torch
 
+from vistask.checks import checked
 from vistask.features import (
     Compound,
     Keypoints,
@@ -34,11 +35,15 @@ from vistask.memory import base_pages
 ExplorationPolicy = Callable[[np.ndarray, np.random.Generator], np.ndarray]
 
 
+@checked
 def check_image_env(env: gym.Env, continuous: bool = False) -> None:
     """Raise a clear error unless ``env`` has (H, W, 3) uint8 image observations and the
     actions that the learner needs: ``Discrete`` for RLVC, a bounded 1-D ``Box`` for RLJC
     (``continuous``)."""
     learner = "RLJC" if continuous else "RLVC"
+    spec = getattr(env, "spec", None)
+    if spec is not None:
+        learner = f"{learner} (on {spec.id})"
     check_image_space(env.observation_space, learner)
     space = env.action_space
     if not continuous and not isinstance(space, gym.spaces.Discrete):
@@ -51,8 +56,17 @@ def check_image_env(env: gym.Env, continuous: bool = False) -> None:
             " (RLVCAgent learns discrete actions)" if isinstance(space, gym.spaces.Discrete) else ""
         )
         raise TypeError(f"RLJC needs a bounded Box action space of shape (m,), got {space}{hint}")
+    if continuous and not np.issubdtype(space.dtype, np.floating):
+        raise TypeError(
+            f"RLJC needs a float action space (it splits actions at thresholds), got {space}"
+        )
+    if continuous and not (space.shape[0] >= 1 and bool(np.all(space.low < space.high))):
+        raise ValueError(
+            f"RLJC needs an action space with low < high in every dimension, got {space}"
+        )
 
 
+@checked
 @dataclass
 class Transitions:
     """Raw interactions as collected: percepts (M images), and per interaction i the indices
@@ -74,6 +88,7 @@ class Transitions:
         return len(self.actions)
 
 
+@checked
 def random_policy(space: gym.spaces.Discrete | gym.spaces.Box) -> ExplorationPolicy:
     """Uniformly random actions for a batch of observations: (B,) ids of a ``Discrete`` space,
     or (B, m) points of a bounded ``Box``."""
@@ -86,6 +101,7 @@ def random_policy(space: gym.spaces.Discrete | gym.spaces.Box) -> ExplorationPol
     return lambda observations, rng: start + rng.integers(n, size=len(observations))
 
 
+@checked
 def vector_copies(env: gym.Env, n_envs: int) -> gym.vector.VectorEnv:
     """``n_envs`` copies of ``env`` as one vector env without autoreset.
 
@@ -116,6 +132,7 @@ def _copy(env: gym.Env) -> gym.Env:
     return copy.deepcopy(env)
 
 
+@checked
 @base_pages()  # each call runs inside the block
 def collect(
     env: gym.Env,
@@ -246,6 +263,7 @@ class ColumnRoom:
         return room.buffer[:, : f + c], room
 
 
+@checked
 @dataclass
 class InteractionDatabase:
     """Interactions with feature presence, laid out for the split search.

@@ -17,6 +17,8 @@ from typing import NamedTuple
 import numpy as np
 import torch
 
+from vistask.checks import checked
+
 
 class _Tables(NamedTuple):
     """The tree as arrays, rebuilt after a split: what the batched queries index."""
@@ -32,6 +34,7 @@ class _Tables(NamedTuple):
     box_high: np.ndarray  # (J, m)
 
 
+@checked
 class JointTree:
     """Decision tree over visual features and action thresholds; batched queries.
 

@@ -18,13 +18,14 @@ from __future__ import annotations
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 
 import numpy as np
 import torch
 from tqdm.auto import tqdm
 
+from vistask.checks import checked
 from vistask.features import Compound
 from vistask.memory import base_pages
 from vistask.parallel import map_runs
@@ -61,6 +62,7 @@ def single_thread() -> Iterator[None]:
         torch.set_num_threads(threads)
 
 
+@checked
 @dataclass
 class StageRecord:
     """What one stage saw and did."""
@@ -84,6 +86,7 @@ class Timing:
     compaction: float = 0.0  # merging, dropping features, solving Q on the merged classes
 
 
+@checked
 @dataclass
 class RLVC:
     """RLVC learner over an interaction database with feature presence.
@@ -172,6 +175,14 @@ class RLVC:
             raise ValueError(
                 f"compaction_tolerance must be in [0, 1), got {self.compaction_tolerance}"
             )
+        defaults = {f.name: f.default for f in fields(self)}
+        for option, switch in (
+            ("compact_every", "compaction"),
+            ("compaction_tolerance", "compaction"),
+            ("compound_tolerances", "use_compounds"),
+        ):
+            if not getattr(self, switch) and getattr(self, option) != defaults[option]:
+                raise ValueError(f"{option} acts only with {switch}=True, which is off")
         self.structure = (ClassBDD if self.compaction else ClassTree)(self.n_features)
         self._q = torch.zeros(1, self.n_actions, dtype=torch.float64)
 
@@ -436,6 +447,7 @@ class RLVC:
         # hold numpy arrays: the pool pickles them in a thread, and torch pickles a tensor by
         # moving its memory while this process may be reading it (a segfault, seen).
         config = {**self.config(), "use_compounds": False, "compact_every": None}
+        del config["compound_tolerances"]  # an option of use_compounds
         percepts = replace(db, positions=None, occurrences=None).state_dict()
         percepts = {k: v.numpy() if torch.is_tensor(v) else v for k, v in percepts.items()}
         jobs = [

@@ -19,6 +19,7 @@ import numpy as np
 import torch
 from tqdm.auto import tqdm
 
+from vistask.checks import checked
 from vistask.rlvc.database import InteractionDatabase
 from vistask.rlvc.joint_tree import JointTree, cells_of
 from vistask.rlvc.learner import StageRecord, Timing, single_thread
@@ -32,6 +33,7 @@ from vistask.rlvc.split import (
 from vistask.saving import load_state, save_state
 
 
+@checked
 def joint_values(
     classes: torch.Tensor,
     rewards: torch.Tensor,
@@ -92,6 +94,7 @@ def joint_values(
     return q, v
 
 
+@checked
 @dataclass
 class RLJC:
     """RLJC learner over an interaction database with continuous actions.

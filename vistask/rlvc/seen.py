@@ -18,12 +18,14 @@ import numpy as np
 import scipy.sparse as sp
 import torch
 
+from vistask.checks import checked
 from vistask.rlvc.bdd import ClassBDD
 from vistask.rlvc.tree import ClassTree
 
 MAX_DISTANCES = 2**24  # distances held at once (64 MiB of float32)
 
 
+@checked
 @dataclass
 class SeenPercepts:
     """The distinct patterns of tested features among the percepts seen, and their classes.

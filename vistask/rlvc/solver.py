@@ -10,7 +10,10 @@ from dataclasses import dataclass
 
 import torch
 
+from vistask.checks import checked
 
+
+@checked
 @dataclass
 class ClassMDP:
     """Estimated finite MDP over visual classes.
@@ -29,6 +32,7 @@ class ClassMDP:
     transitions: torch.Tensor
 
 
+@checked
 def estimate_mdp(
     states: torch.Tensor,
     actions: torch.Tensor,
@@ -66,6 +70,7 @@ def estimate_mdp(
     )
 
 
+@checked
 def value_iteration(
     mdp: ClassMDP, gamma: float, tol: float = 1e-8, max_iters: int = 10_000
 ) -> torch.Tensor:
@@ -92,12 +97,14 @@ def value_iteration(
     return q.masked_fill(~visited, -torch.inf)
 
 
+@checked
 def state_values(q: torch.Tensor) -> torch.Tensor:
     """V(s) = max_a Q(s, a), 0 for classes with no visited action. q (S, A) -> (S,)."""
     v = q.max(dim=1).values
     return torch.where(torch.isfinite(v), v, torch.zeros_like(v))
 
 
+@checked
 def td_errors(
     q: torch.Tensor,
     states: torch.Tensor,

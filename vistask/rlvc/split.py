@@ -21,7 +21,10 @@ import numpy as np
 import torch
 from scipy import stats
 
+from vistask.checks import checked
 
+
+@checked
 @dataclass
 class Split:
     """A significant split: class ``state`` on ``feature``, found under ``action``."""
@@ -103,6 +106,7 @@ def welch_splits(
     return reduction, p, maybe & (p < alpha)
 
 
+@checked
 def find_splits(
     rows: torch.Tensor,
     features: torch.Tensor,
@@ -202,6 +206,7 @@ def find_splits(
     return sorted(splits, key=lambda split: -split.reduction)
 
 
+@checked
 @dataclass
 class ThresholdSplit:
     """A significant split of class ``state`` on "action component ``dim`` >= ``threshold``"."""
@@ -213,6 +218,7 @@ class ThresholdSplit:
     p_value: float
 
 
+@checked
 def find_threshold_splits(
     states: torch.Tensor,
     actions: torch.Tensor,

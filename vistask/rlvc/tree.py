@@ -10,7 +10,10 @@ from __future__ import annotations
 import numpy as np
 import torch
 
+from vistask.checks import checked
 
+
+@checked
 class ClassTree:
     """Binary decision tree over feature presence; classifies batches in one vectorized call.
 

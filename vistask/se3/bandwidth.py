@@ -9,6 +9,7 @@ import math
 
 import torch
 
+from vistask.checks import checked
 from vistask.se3 import kernels
 from vistask.se3.kde import SE3KDE, KernelDensity
 from vistask.se3.r3s2 import R3S2KDE
@@ -23,6 +24,7 @@ def _space(points: torch.Tensor) -> type[KernelDensity]:
     return SE3KDE if points.shape[-1] == 7 else R3S2KDE
 
 
+@checked
 def rule_of_thumb_bandwidth(
     points: torch.Tensor, weights: torch.Tensor | None = None
 ) -> tuple[float, float]:
@@ -51,12 +53,16 @@ def rule_of_thumb_bandwidth(
     angles = space.direction_angle(u, kernels.principal_axis(u, w)[None, :])
     spread_r = math.sqrt(float(w @ angles**2) / rot_dims)
     if spread_t <= 0 or spread_r <= 0:
-        raise ValueError("the rule of thumb needs particles that spread in position and direction")
+        raise ValueError(
+            f"points must spread in position and direction for the rule of thumb, got "
+            f"{len(t)} particle(s) with spreads {spread_t:.3g} m and {spread_r:.3g} rad"
+        )
     sigma_t = factor * spread_t
     sigma_r = min(max(math.sqrt(2.0) * factor * spread_r, 1e-3), math.pi)
     return sigma_t, sigma_r
 
 
+@checked
 def cross_validate_bandwidth(
     points: torch.Tensor,
     weights: torch.Tensor | None = None,
@@ -119,6 +125,7 @@ def cross_validate_bandwidth(
     return grid_t[best // len(grid_r)], grid_r[best % len(grid_r)], scores
 
 
+@checked
 def select_bandwidth(
     points: torch.Tensor,
     weights: torch.Tensor | None = None,
@@ -138,6 +145,9 @@ def select_bandwidth(
             ``cross_validate_bandwidth``); unused by the rule of thumb.
     """
     if method == "rule":
+        for name, grid in (("sigma_t_grid", sigma_t_grid), ("sigma_r_grid", sigma_r_grid)):
+            if grid is not None:
+                raise ValueError(f"{name} acts only with method='cv', not {method!r}")
         return rule_of_thumb_bandwidth(points, weights)
     if method == "cv":
         sigma_t, sigma_r, _ = cross_validate_bandwidth(
@@ -147,6 +157,7 @@ def select_bandwidth(
     raise ValueError(f"method must be 'rule' or 'cv', got {method!r}")
 
 
+@checked
 def fit_density(
     points: torch.Tensor,
     weights: torch.Tensor | None = None,

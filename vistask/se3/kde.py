@@ -17,6 +17,7 @@ from typing import ClassVar, TypeVar, Union
 import torch
 import torch.nn.functional as F
 
+from vistask.checks import check_at_least, check_device, checked
 from vistask.saving import load_state, save_state
 from vistask.se3 import kernels
 from vistask.se3.grid import CellIndex
@@ -40,6 +41,7 @@ D = TypeVar("D", bound="KernelDensity")
 Weighting = Union["KernelDensity", Callable[[torch.Tensor], torch.Tensor]]
 
 
+@checked
 class KernelDensity:
     """Weighted particles (t_i, u_i), t_i in R^3, u_i a unit vector with u ~ -u, shared bandwidth.
 
@@ -68,10 +70,11 @@ class KernelDensity:
     ) -> None:
         points = self.check_points(points, "points", batched=True)
         if device is not None:
-            points = points.to(device)
+            points = points.to(check_device(device))
         if points.shape[0] == 0:
-            raise ValueError("a density needs at least one particle")
+            raise ValueError("points must hold at least one particle, got none")
         self.sigma_t, self.sigma_r = kernels.check_bandwidth(sigma_t, sigma_r)
+        kernels.check_spread(points[:, :3], self.sigma_t)
         self.kernel = kernels.check_kernel(kernel)
         self.kappa = self.kappa_from_sigma(self.sigma_r)
         self._points = points
@@ -356,6 +359,7 @@ class KernelDensity:
         Returns:
             (k', 3 + D) modes sorted by decreasing density, (k',) unnormalised densities there.
         """
+        check_at_least(1, k=k, n_starts=n_starts, n_iter=n_iter)
         # Resampled starts visit every region in proportion to its mass, so minor modes get some.
         picked = kernels.systematic_resample(self._weights, min(n_starts, len(self)), generator)
         x = self._points[torch.unique(picked)]
@@ -428,6 +432,7 @@ class KernelDensity:
 
     def to(self: D, device: torch.device | str) -> D:
         """A copy of the density on ``device``."""
+        device = check_device(device)
         return self._new(self._points.to(device), self._weights.to(device))
 
 
@@ -440,6 +445,7 @@ def _apply_weighting(fn: Weighting, points: torch.Tensor, name: str) -> torch.Te
     return values
 
 
+@checked
 def product(
     densities: Sequence[D],
     n: int,
@@ -461,18 +467,37 @@ def product(
     Returns:
         a density with n particles.
     """
-    if len(densities) < 1:
-        raise ValueError("product needs at least one density")
-    first = densities[0]
-    if any(type(d) is not type(first) for d in densities):
-        raise ValueError("product needs densities of the same type")
+    first = _check_densities(densities)
+    check_at_least(1, n=n)
     x = first.sample(n, generator)
     weights = torch.ones(n, dtype=x.dtype, device=x.device)
-    for other in densities[1:]:
-        weights = weights * other.evaluate(x.to(other.device)).to(x.device)
+    for k, other in enumerate(densities[1:], 1):
+        values = other.evaluate(x.to(other.device))
+        # Kernel values stop at a floor (see kernels.WEIGHT_HEADROOM): all there, no overlap.
+        if not (values > 2 * math.exp(kernels.log_floor(values.dtype))).any():
+            raise ValueError(
+                f"densities do not overlap: densities[{k}] is nil (below float precision) at "
+                f"all {n} particles drawn from densities[0]"
+            )
+        weights = weights * values.to(x.device)
     return first._new(x, weights, sigma_t=sigma_t, sigma_r=sigma_r)
 
 
+def _check_densities(densities: Sequence[D]) -> D:
+    """The first of one or more densities of one type; a clear error otherwise."""
+    if isinstance(densities, KernelDensity) or not isinstance(densities, Sequence):
+        raise TypeError(f"densities must be a list of densities, got {type(densities).__name__}")
+    if len(densities) < 1:
+        raise ValueError("densities must hold at least one density, got none")
+    first = densities[0]
+    for d in densities:
+        if not isinstance(d, KernelDensity) or type(d) is not type(first):
+            kinds = sorted({type(d).__name__ for d in densities})
+            raise TypeError(f"densities must be of one type, got {kinds}")
+    return first
+
+
+@checked
 def mixture(
     densities: Sequence[D], coefficients: Sequence[float] | torch.Tensor | None = None
 ) -> D:
@@ -485,17 +510,16 @@ def mixture(
     Returns:
         a density holding all particles.
     """
-    if len(densities) < 1:
-        raise ValueError("mixture needs at least one density")
-    first = densities[0]
+    first = _check_densities(densities)
     for d in densities:
-        same = (d.sigma_t, d.sigma_r, d.kernel) == (first.sigma_t, first.sigma_r, first.kernel)
-        if type(d) is not type(first) or not same:
-            raise ValueError("mixture components must share type, bandwidth and kernel")
+        if (d.sigma_t, d.sigma_r, d.kernel) != (first.sigma_t, first.sigma_r, first.kernel):
+            raise ValueError("densities of a mixture must share their bandwidth and kernel")
     coef = torch.ones(len(densities)) if coefficients is None else torch.as_tensor(coefficients)
+    if coef.shape != (len(densities),) or coef.is_complex():
+        raise ValueError(f"coefficients must be {len(densities)} real numbers, got {coefficients}")
+    if not (torch.isfinite(coef).all() and (coef >= 0).all() and (coef > 0).any()):
+        raise ValueError(f"coefficients must be finite, >= 0, not all 0, got {coefficients}")
     coef = coef.to(dtype=first.points.dtype, device=first.device)
-    if coef.shape != (len(densities),):
-        raise ValueError(f"coefficients must have shape ({len(densities)},)")
     points = torch.cat([d.points.to(first.device) for d in densities])
     weights = torch.cat(
         [c * d.weights.to(first.device) for c, d in zip(coef, densities, strict=True)]
@@ -503,6 +527,7 @@ def mixture(
     return first._new(points, weights)
 
 
+@checked
 class SE3KDE(KernelDensity):
     """Kernel density on SE(3): particles are (N, 7) poses [t, qx, qy, qz, qw].
 

@@ -42,6 +42,10 @@ SIGMA_R_MIN = 1e-5  # radians
 # whose float32 cancellation error would exceed it is computed in float64.
 EXPONENT_TOLERANCE = 1e-6
 _EPS32 = float(torch.finfo(torch.float32).eps)
+_EPS64 = float(torch.finfo(torch.float64).eps)
+# Beyond this error of a kernel exponent even in float64 (0.1% of a kernel value), a density
+# is refused rather than computed wrong (``check_spread``).
+REFUSED_EXPONENT_ERROR = 1e-3
 
 
 def check_bandwidth(sigma_t: float, sigma_r: float) -> tuple[float, float]:
@@ -128,13 +132,16 @@ def normalise_weights(weights: torch.Tensor | None, points: torch.Tensor) -> tor
         weights = torch.as_tensor(weights)
     if weights.shape != (n,):
         raise ValueError(f"weights must have shape ({n},), got {tuple(weights.shape)}")
-    weights = weights.to(dtype=points.dtype, device=points.device)
+    if weights.is_complex() or weights.dtype == torch.bool:
+        raise TypeError(f"weights must be real numbers, got {weights.dtype}")
     if not torch.isfinite(weights).all() or (weights < 0).any():
-        raise ValueError("weights must be finite and non-negative")
-    total = weights.sum()
-    if not total > 0:
-        raise ValueError("the total weight must be positive (all weights are zero)")
-    return weights / total
+        raise ValueError(f"weights must be finite and non-negative, got {weights.tolist()[:8]}")
+    peak = weights.max()
+    if not peak > 0:
+        raise ValueError("weights must not all be zero")
+    # Scaled by the largest first: a sum of weights near the dtype's maximum would overflow.
+    weights = (weights / peak).to(dtype=points.dtype, device=points.device)
+    return weights / weights.sum()
 
 
 def principal_axis(u: torch.Tensor, weights: torch.Tensor) -> torch.Tensor:
@@ -220,6 +227,22 @@ def systematic_resample(
     positions = (torch.arange(n, dtype=torch.float64, device=weights.device) + offset) / n
     idx = torch.searchsorted(cumulative, positions, right=True)
     return idx.clamp(max=weights.numel() - 1)
+
+
+def check_spread(t: torch.Tensor, sigma_t: float) -> None:
+    """Raise ``ValueError`` unless (N, 3) translations lie close enough to their mean, in units
+    of ``sigma_t``, for ``PairTerms``' expanded squared distances to hold their kernel
+    exponents to ``REFUSED_EXPONENT_ERROR`` in float64."""
+    if not t.numel():
+        return
+    t = t.double()
+    spread = float((t - t.mean(dim=0)).norm(dim=1).max())
+    if _EPS64 * (spread / sigma_t) ** 2 * 4.0 > REFUSED_EXPONENT_ERROR:
+        raise ValueError(
+            f"points spread {spread:.3g} m about their mean: at sigma_t {sigma_t:g} m, kernel "
+            f"values that far apart are beyond float64's precision (use a wider sigma_t, or "
+            f"densities of nearby particles)"
+        )
 
 
 class PairTerms:

@@ -11,6 +11,8 @@ import math
 import roma
 import torch
 
+from vistask.checks import check_at_least, check_integers, checked
+
 UNIT_TOLERANCE = 1e-3
 """Largest accepted deviation of a quaternion's norm from 1 before a ValueError is raised."""
 
@@ -39,6 +41,7 @@ def check_unit(u: torch.Tensor, name: str, tolerance: float = UNIT_TOLERANCE) ->
     return u / norms
 
 
+@checked
 def check_poses(poses: torch.Tensor, name: str = "poses", batched: bool = False) -> torch.Tensor:
     """Validate poses and return them as a floating tensor with renormalised quaternions.
 
@@ -50,20 +53,40 @@ def check_poses(poses: torch.Tensor, name: str = "poses", batched: bool = False)
     Returns:
         (..., 7) validated poses.
     """
-    if not isinstance(poses, torch.Tensor):
-        raise ValueError(f"{name} must be a torch.Tensor, got {type(poses).__name__}")
-    if poses.shape[-1:] != (7,) or (batched and poses.dim() != 2):
-        want = "(N, 7)" if batched else "(..., 7)"
-        got = tuple(poses.shape)
-        raise ValueError(f"{name} must have shape {want} [t, qx, qy, qz, qw], got {got}")
-    if not poses.is_floating_point():
-        poses = poses.float()
-    if not torch.isfinite(poses[..., :3]).all():
+    return check_points(poses, name, 7, "[t, qx, qy, qz, qw]", batched)
+
+
+def check_points(
+    points: torch.Tensor, name: str, width: int, layout: str, batched: bool
+) -> torch.Tensor:
+    """Validate (..., width) points [t, u] laid out as ``layout`` (for messages): a float32 or
+    float64 tensor (integers are read as float32), finite translations small enough that
+    squared distances cannot overflow, unit directions u (renormalised)."""
+    if not isinstance(points, torch.Tensor):
+        raise TypeError(f"{name} must be a torch.Tensor, got {type(points).__name__}")
+    if points.shape[-1:] != (width,) or (batched and points.dim() != 2):
+        want = f"(N, {width})" if batched else f"(..., {width})"
+        raise ValueError(f"{name} must have shape {want} {layout}, got {tuple(points.shape)}")
+    if points.dtype in (torch.bool, torch.complex64, torch.complex128) or (
+        points.is_floating_point() and points.dtype not in (torch.float32, torch.float64)
+    ):
+        raise TypeError(f"{name} must be float32 or float64, got {points.dtype}")
+    if not points.is_floating_point():
+        points = points.float()
+    translations = points[..., :3]
+    if not torch.isfinite(translations).all():
         raise ValueError(f"{name} contains NaN or infinite translations")
-    quat = check_unit(poses[..., 3:], f"{name} quaternions")
-    return torch.cat([poses[..., :3], quat], dim=-1)
+    limit = torch.finfo(points.dtype).max ** 0.5 * 1e-6
+    if translations.numel() and translations.abs().max() > limit:
+        raise ValueError(
+            f"{name} has a translation of {translations.abs().max().item():.3g}: beyond "
+            f"{limit:.3g} squared distances overflow {points.dtype} (use smaller units)"
+        )
+    direction = "quaternions" if width == 7 else "directions"
+    return torch.cat([translations, check_unit(points[..., 3:], f"{name} {direction}")], dim=-1)
 
 
+@checked
 def make_poses(translation: torch.Tensor, quaternion: torch.Tensor) -> torch.Tensor:
     """Stack (..., 3) translations and (..., 4) XYZW quaternions into (..., 7) poses."""
     return torch.cat(_broadcast_batch(translation, quaternion), dim=-1)
@@ -75,13 +98,17 @@ def _broadcast_batch(*tensors: torch.Tensor) -> list[torch.Tensor]:
     return [t.expand(*shape, t.shape[-1]) for t in tensors]
 
 
+@checked
 def identity_poses(*batch: int, dtype: torch.dtype = torch.float32, device=None) -> torch.Tensor:
     """Identity poses of shape ``(*batch, 7)``."""
+    check_integers(**{f"batch[{i}]": size for i, size in enumerate(batch)})
+    check_at_least(0, **{f"batch[{i}]": size for i, size in enumerate(batch)})
     out = torch.zeros(*batch, 7, dtype=dtype, device=device)
     out[..., 6] = 1.0
     return out
 
 
+@checked
 def random_poses(
     n: int,
     translation_scale: float = 1.0,
@@ -90,17 +117,20 @@ def random_poses(
     device=None,
 ) -> torch.Tensor:
     """(n, 7) poses with Gaussian translations (std ``translation_scale``) and uniform rotations."""
+    check_at_least(0, n=n, translation_scale=translation_scale)
     t = translation_scale * torch.randn(n, 3, generator=generator, dtype=dtype, device=device)
     q = roma.random_unitquat(n, dtype=dtype, device=device, generator=generator)
     return torch.cat([t, q], dim=-1)
 
 
+@checked
 def compose(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     """Pose composition a ∘ b (apply b, then a): (..., 7) x (..., 7) -> (..., 7), broadcast."""
     a, b = _broadcast_batch(a, b)
     return torch.cat([apply(a, b[..., :3]), roma.quat_product(a[..., 3:], b[..., 3:])], dim=-1)
 
 
+@checked
 def inverse(a: torch.Tensor) -> torch.Tensor:
     """The inverse of each (..., 7) pose: composed with the pose, it gives the identity."""
     rotation = roma.unitquat_to_rotmat(a[..., 3:])
@@ -108,11 +138,13 @@ def inverse(a: torch.Tensor) -> torch.Tensor:
     return torch.cat([t, roma.quat_conjugation(a[..., 3:])], dim=-1)
 
 
+@checked
 def relative(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     """Pose of b expressed in the frame of a, inverse(a) ∘ b: (..., 7) x (..., 7) -> (..., 7)."""
     return compose(inverse(a), b)
 
 
+@checked
 def apply(pose: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
     """Transform points by poses, R p + t: (..., 7) x (..., 3) -> (..., 3), broadcast."""
     # Through rotation matrices: a pose that moves many points is turned into one once,
@@ -121,6 +153,7 @@ def apply(pose: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
     return pose[..., :3] + torch.einsum("...ij,...j->...i", rotation, points)
 
 
+@checked
 def rigid_refit(
     poses: torch.Tensor,
     source: torch.Tensor,
@@ -150,22 +183,26 @@ def rigid_refit(
     return torch.where(enough[:, None], fitted, poses), True
 
 
+@checked
 def translation_distance(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     """Euclidean distance between translations: (..., 7) x (..., 7) -> (...)."""
     return (a[..., :3] - b[..., :3]).norm(dim=-1)
 
 
+@checked
 def rotation_distance(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     """Rotation angle in [0, pi] between the rotations of a and b (q and -q alike): -> (...)."""
     a, b = _broadcast_batch(a, b)
     return roma.unitquat_geodesic_distance(a[..., 3:], b[..., 3:])
 
 
+@checked
 def pose_wxyz_to_xyzw(poses: torch.Tensor) -> torch.Tensor:
     """MuJoCo/robosuite boundary: [t, qw, qx, qy, qz] -> [t, qx, qy, qz, qw], (..., 7)."""
     return torch.cat([poses[..., :3], roma.quat_wxyz_to_xyzw(poses[..., 3:])], dim=-1)
 
 
+@checked
 def pose_xyzw_to_wxyz(poses: torch.Tensor) -> torch.Tensor:
     """[t, qx, qy, qz, qw] -> [t, qw, qx, qy, qz] for MuJoCo/robosuite, (..., 7)."""
     return torch.cat([poses[..., :3], roma.quat_xyzw_to_wxyz(poses[..., 3:])], dim=-1)

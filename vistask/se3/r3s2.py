@@ -7,25 +7,19 @@ from __future__ import annotations
 import roma
 import torch
 
+from vistask.checks import checked
 from vistask.se3 import kernels
 from vistask.se3.kde import SE3KDE, KernelDensity
-from vistask.se3.poses import check_poses, check_unit
+from vistask.se3.poses import check_points, check_poses
 
 
+@checked
 def check_r3s2(points: torch.Tensor, name: str = "points", batched: bool = False) -> torch.Tensor:
     """Validate (..., 6) points [t, v] (v a unit direction) and renormalise v."""
-    if not isinstance(points, torch.Tensor):
-        raise ValueError(f"{name} must be a torch.Tensor, got {type(points).__name__}")
-    if points.shape[-1:] != (6,) or (batched and points.dim() != 2):
-        want = "(N, 6)" if batched else "(..., 6)"
-        raise ValueError(f"{name} must have shape {want} [t, v], got {tuple(points.shape)}")
-    if not points.is_floating_point():
-        points = points.float()
-    if not torch.isfinite(points[..., :3]).all():
-        raise ValueError(f"{name} contains NaN or infinite positions")
-    return torch.cat([points[..., :3], check_unit(points[..., 3:], f"{name} directions")], dim=-1)
+    return check_points(points, name, 6, "[t, vx, vy, vz]", batched)
 
 
+@checked
 def project_se3_to_r3s2(poses: torch.Tensor, axis: int = 2) -> torch.Tensor:
     """(..., 7) poses -> (..., 6) [t, R e_axis]: position and one axis of the rotation."""
     if axis not in (0, 1, 2):
@@ -38,6 +32,7 @@ def project_se3_to_r3s2(poses: torch.Tensor, axis: int = 2) -> torch.Tensor:
     return torch.cat([poses[..., :3], direction], dim=-1)
 
 
+@checked
 class R3S2KDE(KernelDensity):
     """Kernel density on R^3 x S^2 with axial directions: particles are (N, 6) [t, v].
 

@@ -19,6 +19,8 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
+from vistask.checks import check_at_least, checked
+
 
 def _check_camera(K: Tensor, cam_to_world: Tensor) -> None:
     if K.shape != (3, 3):
@@ -27,6 +29,7 @@ def _check_camera(K: Tensor, cam_to_world: Tensor) -> None:
         raise ValueError(f"cam_to_world must have shape (4, 4), got {tuple(cam_to_world.shape)}")
 
 
+@checked
 def backproject(pixels: Tensor, depth: Tensor, K: Tensor, cam_to_world: Tensor) -> Tensor:
     """Lift pixels with depth to world points.
 
@@ -56,6 +59,7 @@ def backproject(pixels: Tensor, depth: Tensor, K: Tensor, cam_to_world: Tensor) 
     return cam @ cam_to_world[:3, :3].T + cam_to_world[:3, 3]
 
 
+@checked
 def project(points: Tensor, K: Tensor, cam_to_world: Tensor) -> tuple[Tensor, Tensor]:
     """Project world points into the image.
 
@@ -79,6 +83,7 @@ def project(points: Tensor, K: Tensor, cam_to_world: Tensor) -> tuple[Tensor, Te
     return uvw[..., :2] / z.unsqueeze(-1), z
 
 
+@checked
 def intrinsics_from_fovy(fovy_deg: float, height: int, width: int) -> Tensor:
     """Intrinsics of a MuJoCo camera (square pixels, vertical field of view ``fovy_deg``).
 
@@ -89,8 +94,9 @@ def intrinsics_from_fovy(fovy_deg: float, height: int, width: int) -> Tensor:
     Returns:
         (3, 3) float64 intrinsics.
     """
-    if height <= 0 or width <= 0:
-        raise ValueError(f"image size must be positive, got {height}x{width}")
+    check_at_least(1, height=height, width=width)
+    if not 0 < fovy_deg < 180:
+        raise ValueError(f"fovy_deg must be in (0, 180) degrees, got {fovy_deg}")
     f = 0.5 * height / math.tan(math.radians(fovy_deg) / 2)
     return torch.tensor(
         [[f, 0.0, width / 2 - 0.5], [0.0, f, height / 2 - 0.5], [0.0, 0.0, 1.0]],
@@ -98,6 +104,7 @@ def intrinsics_from_fovy(fovy_deg: float, height: int, width: int) -> Tensor:
     )
 
 
+@checked
 def look_at(eye: Tensor, target: Tensor, up: Tensor | None = None) -> Tensor:
     """Camera-to-world transform (OpenCV axes) of a camera at ``eye`` looking at ``target``.
 
@@ -126,6 +133,7 @@ def look_at(eye: Tensor, target: Tensor, up: Tensor | None = None) -> Tensor:
     return T
 
 
+@checked
 def depth_buffer_to_metres(buffer: Tensor, near: float, far: float) -> Tensor:
     """Convert an OpenGL depth buffer in [0, 1] to z-depth in metres.
 
@@ -145,6 +153,7 @@ def depth_buffer_to_metres(buffer: Tensor, near: float, far: float) -> Tensor:
     return near / (1.0 - buffer * (1.0 - near / far))
 
 
+@checked
 def pixel_grid(height: int, width: int, device: torch.device | str | None = None) -> Tensor:
     """(H, W, 2) pixel coordinates (u, v) of every pixel centre."""
     v, u = torch.meshgrid(
@@ -155,6 +164,7 @@ def pixel_grid(height: int, width: int, device: torch.device | str | None = None
     return torch.stack([u, v], dim=-1)
 
 
+@checked
 @dataclass
 class Camera:
     """A pinhole camera.
@@ -192,6 +202,7 @@ class Camera:
         return project(points, self.K, self.cam_to_world)
 
 
+@checked
 @dataclass
 class RGBDView:
     """One rendered RGB-D image with its camera.

@@ -31,7 +31,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from vistask.checks import check_at_least, check_positive
+from vistask.checks import check_at_least, check_device, check_positive, checked
 from vistask.saving import load_state, save_state
 from vistask.vision.camera import Camera, backproject
 
@@ -46,6 +46,7 @@ def _pose_rt(pose: Tensor) -> tuple[Tensor, Tensor]:
     return roma.unitquat_to_rotmat(F.normalize(pose[3:], dim=0)), pose[:3]
 
 
+@checked
 @dataclass
 class Patches:
     """A set of N 3-D oriented appearance patches (see the module docstring for fields)."""
@@ -88,6 +89,7 @@ class Patches:
 
     def to(self, device: torch.device | str) -> Patches:
         """Copy to ``device``."""
+        device = check_device(device)
         return self._map(lambda x: x.to(device))
 
     def select(self, index: Tensor) -> Patches:
@@ -268,6 +270,7 @@ def _depth_edges(depth: np.ndarray, jump: float) -> np.ndarray:
     return edge & ~np.isnan(depth)
 
 
+@checked
 class PatchExtractor:
     """Extracts 3-D oriented appearance patches from one RGB-D image.
 
@@ -309,6 +312,7 @@ class PatchExtractor:
         if normal_radius < 0:
             raise ValueError(f"normal_radius must be >= 0 (0: no normals), got {normal_radius}")
         check_positive(color_offset=color_offset, depth_jump=depth_jump, max_depth=max_depth)
+        check_at_least(0, canny_low=canny_low, canny_high=canny_high, blur_sigma=blur_sigma)
         self.spacing = spacing
         self.canny_low = canny_low
         self.canny_high = canny_high

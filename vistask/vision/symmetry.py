@@ -15,9 +15,12 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
+from vistask.checks import checked
+
 _IDENTITY = torch.tensor([[0.0, 0.0, 0.0, 1.0]])
 
 
+@checked
 @dataclass(frozen=True)
 class Symmetry:
     """Rotational symmetry of an object about its frame origin.
@@ -47,7 +50,10 @@ class Symmetry:
         axis: tuple[float, float, float] = (0.0, 0.0, 1.0), order: int | None = None
     ) -> Symmetry:
         """Symmetry about ``axis``: continuous when ``order`` is None, else ``order``-fold."""
-        a = F.normalize(torch.tensor(axis, dtype=torch.float32), dim=0)
+        a = torch.tensor(axis, dtype=torch.float32)
+        if not a.norm() > 0:
+            raise ValueError(f"axis must be a non-zero vector, got {axis}")
+        a = F.normalize(a, dim=0)
         if order is None:
             return Symmetry(axis=a)
         if order < 1:
@@ -69,6 +75,7 @@ class Symmetry:
         }
 
 
+@checked
 def pose_error(
     est: Tensor, true: Tensor, symmetry: Symmetry | None = None
 ) -> tuple[Tensor, Tensor]:

@@ -8,11 +8,13 @@ from dataclasses import replace
 import torch
 from torch import Tensor
 
+from vistask.checks import checked
 from vistask.se3 import apply, inverse
 from vistask.vision.camera import RGBDView
 from vistask.vision.patches import Patches, PatchExtractor
 
 
+@checked
 def view_patches(
     view: RGBDView,
     label: int | None = None,
@@ -35,6 +37,7 @@ def view_patches(
     return extract(view.rgb, view.depth, view.camera, mask=mask, device=device)
 
 
+@checked
 def object_patch_set(
     views: Sequence[RGBDView],
     object_poses: Tensor,
@@ -80,6 +83,7 @@ def object_patch_set(
     return merged if voxel is None else merged.voxel_downsample(voxel)
 
 
+@checked
 def object_surface(
     views: Sequence[RGBDView], object_poses: Tensor, label: int = 0, voxel: float = 0.004
 ) -> Tensor:

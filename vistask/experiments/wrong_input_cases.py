@@ -1,0 +1,1021 @@
+"""The wrong inputs of ``scripts/sweep_wrong_inputs.py``: over the agents, the learners, the
+SE(3) densities, object models and NBP, grasp learning, the envs and the scripts, by kind.
+
+Example:
+    >>> cases = api_cases(tmp_path) + script_cases()
+"""
+
+from __future__ import annotations
+
+import inspect
+import json
+import math
+from collections.abc import Callable, Iterator
+from functools import cache
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+import torch
+
+import vistask.envs  # noqa: F401  (registers the environments)
+from vistask.agents import Compaction, RLJCAgent, RLVCAgent, TabularQAgent
+from vistask.experiments.wrong_inputs import Case
+from vistask.grasp import GraspLearner, Workspace, demonstration_density, empirical_density
+from vistask.grasp.importance import Trials
+from vistask.objects import NBP
+from vistask.rlvc import RLJC, RLVC
+from vistask.se3 import (
+    R3S2KDE,
+    SE3KDE,
+    fit_density,
+    identity_poses,
+    mixture,
+    product,
+    random_poses,
+    select_bandwidth,
+)
+from vistask.vision import PatchExtractor, Symmetry, intrinsics_from_fovy
+
+MAZE = "vistask/VisualMaze-v0"
+CONTINUOUS_MAZE = "vistask/VisualMazeContinuous-v0"
+CAR = "vistask/VisualMountainCar-v0"
+PLACES = "vistask/PlaceNavigation-v0"
+GRASP = "vistask/GraspTrial-v0"
+
+# Values of the wrong type for a parameter annotated with each scalar type.
+WRONG_TYPES = {
+    "int": (1.7, "3", True),
+    "float": ("0.5", 1j, math.nan),
+    "bool": ("False", 1, None),
+}
+
+
+@cache
+def _maze() -> gym.Env:
+    return gym.make(MAZE)
+
+
+@cache
+def _continuous_maze() -> gym.Env:
+    return gym.make(CONTINUOUS_MAZE)
+
+
+@cache
+def _frozen_lake() -> gym.Env:
+    return gym.make("FrozenLake-v1")
+
+
+def _poses(n: int = 5, seed: int = 0) -> torch.Tensor:
+    return random_poses(n, generator=torch.Generator().manual_seed(seed))
+
+
+@cache
+def _density() -> SE3KDE:
+    return SE3KDE(_poses(), sigma_t=0.05, sigma_r=0.3)
+
+
+@cache
+def _learned_maze_agent(folder: Path) -> Path:
+    path = folder / "maze_agent.pt"
+    agent = RLVCAgent(_maze(), n_words=64, databases=1, max_stages=3, seed=0)
+    agent.learn(1000)
+    agent.save(path)
+    return path
+
+
+@cache
+def _learned_tabular(folder: Path) -> Path:
+    path = folder / "tabular.pt"
+    TabularQAgent(_frozen_lake(), seed=0).learn(200).save(path)
+    return path
+
+
+def _int_box_env() -> gym.Env:
+    """The continuous maze with an integer action Box."""
+    env = gym.make(CONTINUOUS_MAZE)
+    env.action_space = gym.spaces.Box(-3, 3, (2,), np.int64)
+    return env
+
+
+def _box_env(low, high) -> gym.Env:
+    env = gym.make(CONTINUOUS_MAZE)
+    env.action_space = gym.spaces.Box(np.asarray(low, np.float32), np.asarray(high, np.float32))
+    return env
+
+
+def type_cases(label: str, fn: Callable, **kwargs) -> Iterator[Case]:
+    """A value of another type for every int, float and bool parameter of ``fn``, the others
+    as ``kwargs`` give them."""
+    target = fn.__init__ if inspect.isclass(fn) else fn
+    for name, parameter in inspect.signature(inspect.unwrap(target)).parameters.items():
+        annotation = parameter.annotation
+        if not isinstance(annotation, str):
+            annotation = inspect.formatannotation(annotation)
+        optional = annotation.endswith(" | None")
+        for value in WRONG_TYPES.get(annotation.removesuffix(" | None"), ()):
+            if value is None and optional:
+                continue
+
+            def call(name=name, value=value):
+                return fn(**{**kwargs, name: value})
+
+            yield Case("types", f"{label}({name}={value!r})", call, names=(name,))
+
+
+def _case(kind: str, what: str, call: Callable[[], object], *names: str) -> Case:
+    return Case(kind, what, call, names=names)
+
+
+def _agent_cases() -> Iterator[Case]:
+    maze, cmaze = _maze, _continuous_maze
+    yield from type_cases("RLVCAgent", RLVCAgent, env=maze())
+    yield from type_cases("RLJCAgent", RLJCAgent, env=cmaze())
+    yield from type_cases("TabularQAgent", TabularQAgent, env=_frozen_lake())
+    yield from type_cases("Compaction", Compaction)
+    yield from type_cases("RLVC", RLVC, n_features=40, n_actions=4, gamma=0.9)
+    yield from type_cases("RLJC", RLJC, n_features=40, low=[-1.0], high=[1.0], gamma=0.9)
+    for name, values in {
+        "n_words": (0, 1, -5),
+        "databases": (0, -1),
+        "alpha": (0.0, 1.0, 1.5),
+        "min_count": (0, -3),
+        "max_stages": (0,),
+        "epsilon": (-0.1, 1.5),
+        "n_envs": (0,),
+        "max_keypoints": (-1,),
+        "contrast_threshold": (0.0, -1.0, math.inf),
+        "vocabulary_groups": (0, 100_000),
+        "gamma": (1.0, -0.5, 2.0),
+        "seed": (-1,),
+    }.items():
+        for value in values:
+            yield _case(
+                "ranges",
+                f"RLVCAgent({name}={value!r})",
+                lambda n=name, v=value: RLVCAgent(maze(), **{n: v}),
+                name,
+            )
+    for name, value in {"gamma": 1.5, "epsilon": 2.0, "n_words": 0, "alpha": -0.1}.items():
+        yield _case(
+            "ranges",
+            f"RLJCAgent({name}={value!r})",
+            lambda n=name, v=value: RLJCAgent(cmaze(), **{n: v}),
+            name,
+        )
+    for name, value in {
+        "gamma": 1.5,
+        "epsilon": -1,
+        "learning_rate": 2.0,
+        "initial_q": math.inf,
+        "n_states": 0,
+        "n_actions": -1,
+    }.items():
+        yield _case(
+            "ranges",
+            f"TabularQAgent({name}={value!r})",
+            lambda n=name, v=value: TabularQAgent(_frozen_lake(), **{n: v}),
+            name,
+        )
+    for name, value in [("tolerance", -0.1), ("tolerance", 1.5), ("every", 0), ("structures", 0)]:
+        yield _case(
+            "ranges",
+            f"Compaction({name}={value!r})",
+            lambda n=name, v=value: Compaction(**{n: v}),
+            name,
+        )
+    for total in (0, -100):
+        yield _case(
+            "ranges",
+            f"agent.learn({total})",
+            lambda t=total: RLVCAgent(maze()).learn(t),
+            "total_timesteps",
+        )
+    yield _case(
+        "ranges",
+        "TabularQAgent.learn(-5)",
+        lambda: TabularQAgent(_frozen_lake()).learn(-5),
+        "total_timesteps",
+    )
+    yield _case(
+        "ranges",
+        "TabularQAgent.learn(checkpoint_every=0)",
+        lambda: TabularQAgent(_frozen_lake()).learn(10, checkpoint="x.pt", checkpoint_every=0),
+        "checkpoint_every",
+    )
+    # Learners
+    for name, value in {
+        "n_features": 0,
+        "n_actions": 0,
+        "gamma": 1.0,
+        "alpha": 2.0,
+        "min_count": 0,
+        "compaction_tolerance": -1.0,
+    }.items():
+        kwargs = {"n_features": 40, "n_actions": 4, "gamma": 0.9, name: value}
+        if name == "compaction_tolerance":
+            kwargs["compaction"] = True
+        yield _case("ranges", f"RLVC({name}={value!r})", lambda k=kwargs: RLVC(**k), name)
+    yield _case("ranges", "RLJC(low=[1], high=[-1])", lambda: RLJC(40, [1.0], [-1.0], 0.9), "low")
+    yield _case(
+        "ranges", "RLJC(low=[0, 0], high=[1])", lambda: RLJC(40, [0.0, 0.0], [1.0], 0.9), "low"
+    )
+    # Options that only matter with another
+    yield _case(
+        "needs",
+        "RLVC(compact_every=5) without compaction",
+        lambda: RLVC(40, 4, 0.9, compact_every=5),
+        "compact_every",
+        "compaction",
+    )
+    yield _case(
+        "needs",
+        "RLVC(compaction_tolerance=0.01) without compaction",
+        lambda: RLVC(40, 4, 0.9, compaction_tolerance=0.01),
+        "compaction_tolerance",
+        "compaction",
+    )
+    yield _case(
+        "needs",
+        "RLVC(compound_tolerances=(0.5,)) without use_compounds",
+        lambda: RLVC(40, 4, 0.9, compound_tolerances=(0.5,)),
+        "compound_tolerances",
+        "use_compounds",
+    )
+    yield _case(
+        "needs",
+        "TabularQAgent.learn(checkpoint_every=50) without checkpoint",
+        lambda: TabularQAgent(_frozen_lake()).learn(10, checkpoint_every=50),
+        "checkpoint_every",
+        "checkpoint",
+    )
+    yield _case(
+        "needs",
+        "fit_density(sigma_t_grid=...) with method='rule'",
+        lambda: fit_density(_poses(20), sigma_t_grid=[0.01, 0.02]),
+        "sigma_t_grid",
+        "method",
+    )
+    yield _case(
+        "needs",
+        "select_bandwidth(sigma_r_grid=...) with method='rule'",
+        lambda: select_bandwidth(_poses(20), sigma_r_grid=[0.1]),
+        "sigma_r_grid",
+        "method",
+    )
+    yield _case(
+        "needs",
+        "PlaceNavigation(cache_dir=..., disk_cache=False)",
+        lambda: gym.make(PLACES, cache_dir="views", disk_cache=False),
+        "cache_dir",
+        "disk_cache",
+    )
+    # Action spaces
+    yield _case(
+        "types", "RLJCAgent on an integer action Box", lambda: RLJCAgent(_int_box_env()), "action"
+    )
+    yield _case(
+        "ranges",
+        "RLJCAgent on a Box with low == high",
+        lambda: RLJCAgent(_box_env([0.0, 0.0], [0.0, 1.0])),
+        "action",
+    )
+    yield _case(
+        "ranges",
+        "RLJCAgent on a Box with infinite bounds",
+        lambda: RLJCAgent(_box_env([-np.inf, 0.0], [1.0, 1.0])),
+        "action",
+    )
+    yield _case(
+        "ranges",
+        "RLJCAgent on an empty Box",
+        lambda: RLJCAgent(_box_env(np.zeros(0), np.zeros(0))),
+        "action",
+    )
+    yield _case("types", "RLVCAgent on a continuous env", lambda: RLVCAgent(cmaze()), "action")
+    yield _case("types", "RLJCAgent on a discrete env", lambda: RLJCAgent(maze()), "action")
+    yield _case(
+        "types",
+        "RLVCAgent on FrozenLake (no images)",
+        lambda: RLVCAgent(_frozen_lake()),
+        "observation",
+    )
+    yield _case(
+        "types", "TabularQAgent on an image env", lambda: TabularQAgent(maze()), "observation"
+    )
+
+
+def _predict_cases(folder: Path) -> Iterator[Case]:
+    def agent() -> RLVCAgent:
+        return RLVCAgent.load(_learned_maze_agent(folder))
+
+    def image(**kw) -> np.ndarray:
+        return _maze().observation_space.sample()
+
+    shape = _maze().observation_space.shape
+    wrong = {
+        "a bool image in a batch": lambda: [image(), image().astype(bool)],
+        "a float64 image": lambda: image().astype(np.float64),
+        "a float image in a list": lambda: [image().astype(np.float32)],
+        "an image of another size": lambda: np.zeros((32, 32, 3), np.uint8),
+        "a grey image": lambda: np.zeros(shape[:2], np.uint8),
+        "a string": lambda: "image.png",
+        "None": lambda: None,
+        "an empty batch": lambda: np.zeros((0, *shape), np.uint8),
+        "images of two sizes": lambda: [image(), np.zeros((10, 10, 3), np.uint8)],
+        "a torch tensor of floats": lambda: torch.rand(shape),
+    }
+    for what, make in wrong.items():
+        yield _case(
+            "types", f"agent.predict({what})", lambda m=make: agent().predict(m()), "observation"
+        )
+    yield _case(
+        "types",
+        "agent.predict(deterministic='no')",
+        lambda: agent().predict(image(), deterministic="no"),
+        "deterministic",
+    )
+    yield _case(
+        "types",
+        "TabularQAgent.predict(1.5)",
+        lambda: TabularQAgent.load(_learned_tabular(folder)).predict(1.5),
+        "state",
+    )
+    yield _case(
+        "types",
+        "TabularQAgent.predict('3')",
+        lambda: TabularQAgent.load(_learned_tabular(folder)).predict("3"),
+        "state",
+    )
+
+
+def _file_cases(folder: Path) -> Iterator[Case]:
+    other = folder / "other.pt"
+    garbage = folder / "garbage.pt"
+    garbage.write_bytes(b"\x00\x01 not a model")
+    text = folder / "text.pt"
+    text.write_text("hello")
+    empty = folder / "empty.pt"
+    empty.write_bytes(b"")
+
+    def other_file() -> Path:
+        _density().save(other)
+        return other
+
+    for cls in (RLVCAgent, RLJCAgent, TabularQAgent, SE3KDE, RLVC, GraspLearner):
+        for path, what in (
+            (garbage, "garbage"),
+            (text, "text"),
+            (empty, "an empty file"),
+            (folder / "missing.pt", "a missing file"),
+            (folder, "a folder"),
+        ):
+            yield _case(
+                "files", f"{cls.__name__}.load({what})", lambda c=cls, p=path: c.load(p), str(path)
+            )
+        if cls is not SE3KDE:
+            yield _case(
+                "files",
+                f"{cls.__name__}.load(an SE3KDE file)",
+                lambda c=cls: c.load(other_file()),
+                "SE3KDE",
+            )
+    yield _case("types", "SE3KDE.save(path=3)", lambda: _density().save(3), "path")
+
+
+def _other_env_cases(folder: Path) -> Iterator[Case]:
+    saved = _learned_maze_agent(folder)
+    others = {
+        "another layout": lambda: gym.make(MAZE, layout_seed=7),
+        "another photo seed": lambda: gym.make(MAZE, tapestry_seed=3),
+        "the car": lambda: gym.make(CAR),
+        "another window": lambda: gym.make(MAZE, window=48),
+    }
+    for what, make in others.items():
+        yield _case(
+            "other env",
+            f"RLVCAgent.load(maze agent, env={what}) then learn",
+            lambda m=make: RLVCAgent.load(saved, env=m()).learn(200),
+            "env",
+        )
+    tabular = _learned_tabular(folder)
+    yield _case(
+        "other env",
+        "TabularQAgent.load(FrozenLake agent, env=8x8 lake)",
+        lambda: TabularQAgent.load(tabular, env=gym.make("FrozenLake-v1", map_name="8x8")),
+        "env",
+    )
+    yield _case(
+        "other env",
+        "TabularQAgent.load(FrozenLake agent, env=slippery off) then learn",
+        lambda: TabularQAgent.load(tabular, env=gym.make("FrozenLake-v1", is_slippery=False)).learn(
+            10
+        ),
+        "env",
+    )
+
+
+def _density_cases() -> Iterator[Case]:
+    points = _poses()
+    yield from type_cases("SE3KDE", SE3KDE, points=points)
+    yield from type_cases("density.sample", _density().sample, n=10)
+    yield from type_cases("density.modes", _density().modes)
+    yield from type_cases("density.evaluate", _density().evaluate, points=points)
+    yield from type_cases("random_poses", random_poses, n=3)
+    yield from type_cases("product", product, densities=[_density(), _density()], n=10)
+    wrong_points = {
+        "complex": lambda: points.to(torch.complex64),
+        "float16": lambda: points.half(),
+        "int": lambda: points.long(),
+        "bool": lambda: points.bool(),
+        "shape (5, 6)": lambda: points[:, :6],
+        "shape (7,)": lambda: points[0],
+        "a NaN": lambda: torch.where(torch.arange(7) == 0, math.nan, points),
+        "an inf": lambda: torch.where(torch.arange(7) == 1, math.inf, points),
+        "a particle at 1e200": lambda: torch.cat(
+            [points.double(), torch.tensor([[1e200, 0, 0, 0, 0, 0, 1]], dtype=torch.float64)]
+        ),
+        "zero quaternion": lambda: torch.cat([points[:, :3], torch.zeros(5, 4)], 1),
+        "no particles": lambda: points[:0],
+        "a list of strings": lambda: [["a"] * 7],
+    }
+    for what, make in wrong_points.items():
+        yield _case("numbers", f"SE3KDE(points={what})", lambda m=make: SE3KDE(m()), "points")
+        if what in ("shape (7,)", "no particles"):
+            continue  # one pose, and none, are batches evaluate takes
+        yield _case(
+            "numbers",
+            f"density.evaluate({what})",
+            lambda m=make: _density().evaluate(m()),
+            "points",
+        )
+    weights = {
+        "negative": torch.tensor([1.0, -1, 1, 1, 1]),
+        "all zero": torch.zeros(5),
+        "NaN": torch.tensor([1.0, math.nan, 1, 1, 1]),
+        "inf": torch.tensor([1.0, math.inf, 1, 1, 1]),
+        "wrong length": torch.ones(3),
+        "complex": torch.ones(5, dtype=torch.complex64),
+        "2-D": torch.ones(5, 1),
+    }
+    for what, w in weights.items():
+        yield _case("numbers", f"SE3KDE(weights={what})", lambda w=w: SE3KDE(points, w), "weights")
+    for name, value in [
+        ("sigma_t", 0.0),
+        ("sigma_r", -0.1),
+        ("sigma_t", math.inf),
+        ("sigma_r", math.inf),
+    ]:
+        yield _case(
+            "ranges",
+            f"SE3KDE({name}={value})",
+            lambda n=name, v=value: SE3KDE(points, **{n: v}),
+            name,
+        )
+    yield _case(
+        "ranges", "SE3KDE(kernel='cosine')", lambda: SE3KDE(points, kernel="cosine"), "kernel"
+    )
+    yield _case("ranges", "SE3KDE(device='gpu')", lambda: SE3KDE(points, device="gpu"), "device")
+    yield _case("ranges", "R3S2KDE(points of 7 columns)", lambda: R3S2KDE(points), "points")
+    for name, value in [("k", 0), ("n_starts", 0), ("n_iter", -1), ("k", -2)]:
+        yield _case(
+            "ranges",
+            f"density.modes({name}={value})",
+            lambda n=name, v=value: _density().modes(**{n: v}),
+            name,
+        )
+    yield _case("ranges", "density.sample(-1)", lambda: _density().sample(-1), "n")
+    yield _case(
+        "ranges",
+        "density.evaluate(chunk_size=0)",
+        lambda: _density().evaluate(points, chunk_size=0),
+        "chunk_size",
+    )
+    yield _case(
+        "ranges",
+        "density.evaluate(cutoff=-1)",
+        lambda: _density().evaluate(points, cutoff=-1.0),
+        "cutoff",
+    )
+    yield _case("ranges", "random_poses(-1)", lambda: random_poses(-1), "n")
+    yield _case(
+        "ranges",
+        "random_poses(3, translation_scale=-1)",
+        lambda: random_poses(3, translation_scale=-1.0),
+        "translation_scale",
+    )
+    yield _case("ranges", "identity_poses(-2)", lambda: identity_poses(-2), "batch")
+    yield _case("ranges", "product([])", lambda: product([], 10), "densities")
+    yield _case("ranges", "product([d, d], n=0)", lambda: product([_density()] * 2, 0), "n")
+    yield _case("ranges", "mixture([])", lambda: mixture([]), "densities")
+    yield _case(
+        "numbers",
+        "mixture(coefficients=[-1, 2])",
+        lambda: mixture([_density()] * 2, [-1.0, 2.0]),
+        "coefficients",
+    )
+    yield _case(
+        "numbers",
+        "mixture(coefficients of another length)",
+        lambda: mixture([_density()] * 2, [1.0]),
+        "coefficients",
+    )
+    yield _case(
+        "types",
+        "product([SE3KDE, R3S2KDE])",
+        lambda: product([_density(), R3S2KDE.from_se3(_density())], 10),
+        "densities",
+    )
+    yield Case(
+        "numbers",
+        "weights near 1e308 (float64)",
+        lambda: _positive_at_particles(
+            SE3KDE(points.double(), torch.full((5,), 1e308, dtype=torch.float64))
+        ),
+        result=True,
+    )
+    yield Case(
+        "numbers",
+        "float32 density at its particles, sigma_r 1e-4",
+        lambda: _peaks_at_particles(SE3KDE(points, sigma_t=0.01, sigma_r=1e-4)),
+        result=True,
+    )
+    far = SE3KDE(_poses() + torch.tensor([100.0, 0, 0, 0, 0, 0, 0]), sigma_t=0.01)
+    yield _case(
+        "numbers",
+        "product of two far-apart densities",
+        lambda: product([_density(), far], 50),
+        "overlap",
+    )
+    yield _case(
+        "ranges", "fit_density(method='best')", lambda: fit_density(points, method="best"), "method"
+    )
+    yield _case("ranges", "fit_density(one particle)", lambda: fit_density(points[:1]), "points")
+
+
+def _positive_at_particles(density: SE3KDE) -> None:
+    """Raise ``ArithmeticError`` unless the density is finite and positive at its particles."""
+    values = density.evaluate(density.points)
+    if not bool(torch.isfinite(values).all() and (values > 0).all()):
+        raise ArithmeticError(f"density values {values.tolist()}")
+
+
+def _peaks_at_particles(density: SE3KDE) -> None:
+    """Raise ``ArithmeticError`` unless far-apart particles' narrow kernels give each its
+    weight at its own centre (to 1e-5)."""
+    values = density.evaluate(density.points)
+    if not torch.allclose(values, density.weights, rtol=1e-5, atol=0):
+        raise ArithmeticError(f"values {values.tolist()} at the centres, not the weights")
+
+
+def _grasp_cases() -> Iterator[Case]:
+    hypothesis = demonstration_density(identity_poses(2))
+    yield from type_cases("GraspLearner", GraspLearner, hypothesis=hypothesis)
+    yield from type_cases(
+        "demonstration_density", demonstration_density, teacher_grasps=identity_poses(2)
+    )
+    yield from type_cases("NBP", NBP)
+    yield from type_cases("PatchExtractor", PatchExtractor)
+    for name, value in {
+        "reliability": -1.0,
+        "sigma_t": 0.0,
+        "sigma_r": -1.0,
+    }.items():
+        yield _case(
+            "ranges",
+            f"GraspLearner({name}={value})",
+            lambda n=name, v=value: GraspLearner(hypothesis, **{n: v}),
+            name,
+        )
+    for name, value in {"n_per_demo": 0, "noise_t": -0.01, "noise_r": -1.0, "sigma_t": 0.0}.items():
+        yield _case(
+            "ranges",
+            f"demonstration_density({name}={value})",
+            lambda n=name, v=value: demonstration_density(identity_poses(2), **{n: v}),
+            name,
+        )
+    yield _case(
+        "ranges",
+        "demonstration_density(no grasps)",
+        lambda: demonstration_density(identity_poses(0)),
+        "teacher_grasps",
+    )
+    yield _case(
+        "ranges",
+        "Workspace(reach=(0.9, 0.3))",
+        lambda: Workspace(0.8, (0.0, 0.0, 0.9), reach=(0.9, 0.3)),
+        "reach",
+    )
+    yield _case(
+        "ranges", "Workspace(floor_z=nan)", lambda: Workspace(math.nan, (0.0, 0.0, 0.9)), "floor_z"
+    )
+    yield _case(
+        "ranges",
+        "Workspace(pregrasp_distance=-0.1)",
+        lambda: Workspace(0.8, (0.0, 0.0, 0.9), pregrasp_distance=-0.1),
+        "pregrasp_distance",
+    )
+    yield _case("types", "Workspace(base=(0, 0))", lambda: Workspace(0.8, (0.0, 0.0)), "base")
+    trials = Trials()
+    trials.add(identity_poses(3), torch.tensor([True, False, True]), 0)
+    yield _case(
+        "ranges",
+        "empirical_density(c_rel=-1)",
+        lambda: empirical_density(trials, [hypothesis], c_rel=-1.0),
+        "c_rel",
+    )
+    yield _case(
+        "ranges",
+        "Trials.add(3 grasps, 2 outcomes)",
+        lambda: Trials().add(identity_poses(3), torch.tensor([True, False]), 0),
+        "success",
+    )
+    for name, value in {
+        "n_particles": 0,
+        "sigma_t": -1.0,
+        "floor": 1.5,
+        "n_modes": 0,
+        "refine_iters": -1,
+        "cutoff": -1.0,
+        "color_sigma": 0.0,
+        "min_matches": -1,
+    }.items():
+        yield _case("ranges", f"NBP({name}={value})", lambda n=name, v=value: NBP(**{n: v}), name)
+    for name, value in {
+        "spacing": 0,
+        "blur_sigma": -1.0,
+        "canny_low": -5.0,
+        "max_depth": 0.0,
+    }.items():
+        yield _case(
+            "ranges",
+            f"PatchExtractor({name}={value})",
+            lambda n=name, v=value: PatchExtractor(**{n: v}),
+            name,
+        )
+    yield _case(
+        "ranges",
+        "Symmetry.about_axis(axis=(0, 0, 0))",
+        lambda: Symmetry.about_axis((0.0, 0.0, 0.0)),
+        "axis",
+    )
+    yield _case(
+        "ranges", "Symmetry.about_axis(order=0)", lambda: Symmetry.about_axis(order=0), "order"
+    )
+    yield _case(
+        "ranges",
+        "intrinsics_from_fovy(0, 10, 10)",
+        lambda: intrinsics_from_fovy(0.0, 10, 10),
+        "fovy",
+    )
+    yield _case(
+        "ranges",
+        "intrinsics_from_fovy(60, 0, 10)",
+        lambda: intrinsics_from_fovy(60.0, 0, 10),
+        "height",
+    )
+
+
+def _env_cases() -> Iterator[Case]:
+    wrong = [
+        (MAZE, "size", 0.0),
+        (MAZE, "step", 0.0),
+        (MAZE, "step", -0.1),
+        (MAZE, "noise_std", -1.0),
+        (MAZE, "gamma", 1.0),
+        (MAZE, "window", 0),
+        (MAZE, "pixels_per_unit", 0.0),
+        (MAZE, "tile", 0),
+        (MAZE, "photo", "no_such_photo.png"),
+        (MAZE, "layout_seed", -1),
+        (MAZE, "tapestry_seed", -1),
+        (MAZE, "obstacles", ((0.5, 0.5, 0.4, 0.6),)),
+        (MAZE, "exits", ()),
+        (CONTINUOUS_MAZE, "step", -0.1),
+        (CONTINUOUS_MAZE, "gamma", 1.5),
+        (CONTINUOUS_MAZE, "window", -8),
+        (CAR, "height", 0),
+        (CAR, "road_width", 0),
+        (CAR, "road_blur", -1.0),
+        (CAR, "gamma", 1.5),
+        (CAR, "tile", 0),
+        (CAR, "pixels_per_unit", -1.0),
+        (CAR, "road_seed", -2),
+        (PLACES, "rows", 0),
+        (PLACES, "cols", 1),
+        (PLACES, "goal", 100),
+        (PLACES, "extra_open", 1.5),
+        (PLACES, "gamma", 1.0),
+        (PLACES, "image_size", 0),
+        (PLACES, "views_per_state", 0),
+        (PLACES, "fovy", 0.0),
+        (PLACES, "fovy", 200.0),
+        (PLACES, "spacing", 0.0),
+        (GRASP, "placement_range", 5.0),
+        (GRASP, "lift_height", -0.1),
+        (GRASP, "reach_tolerance", (-1.0, 0.4)),
+        (GRASP, "image_size", 0),
+        (GRASP, "n_distractors", -1),
+        (GRASP, "n_distractors", 10),
+        (GRASP, "tip_probability", 1.5),
+        (GRASP, "control_freq", 0),
+        (GRASP, "cameras", ("nowhere",)),
+        (GRASP, "object_kind", "teapot"),
+        (GRASP, "distractors", ("unicorn",)),
+        (GRASP, "pregrasp_distance", -0.01),
+        (GRASP, "lift_threshold", 1.0),
+    ]
+    for env_id, name, value in wrong:
+        yield _case(
+            "env kwargs",
+            f"gym.make({env_id!r}, {name}={value!r})",
+            lambda e=env_id, n=name, v=value: gym.make(e, **{n: v}).reset(seed=0),
+            name,
+        )
+    for env_id in (MAZE, CAR):
+        yield _case(
+            "env kwargs",
+            f"gym.make({env_id!r}, speed=2)",
+            lambda e=env_id: gym.make(e, speed=2),
+            "speed",
+        )
+        yield _case(
+            "types",
+            f"gym.make({env_id!r}, gamma='0.9')",
+            lambda e=env_id: gym.make(e, gamma="0.9"),
+            "gamma",
+        )
+    yield _case(
+        "types",
+        "gym.make(GRASP, placement_range='0.1')",
+        lambda: gym.make(GRASP, placement_range="0.1"),
+        "placement_range",
+    )
+    yield _case(
+        "types",
+        "gym.make(GRASP, cameras='front')",
+        lambda: gym.make(GRASP, cameras="front").reset(seed=0),
+        "cameras",
+    )
+    yield _case(
+        "types", "gym.make(MAZE).reset(seed=1.5)", lambda: gym.make(MAZE).reset(seed=1.5), "seed"
+    )
+    for action in (4, -1, 1.5, "up"):
+        yield _case(
+            "ranges", f"maze env.step({action!r})", lambda a=action: _stepped(MAZE, a), "action"
+        )
+    for action in ([2.0, 0.0], [math.nan], [4.0]):
+        yield _case(
+            "ranges",
+            f"continuous maze env.step({action!r})",
+            lambda a=action: _stepped(CONTINUOUS_MAZE, np.asarray(a, np.float32)),
+            "action",
+        )
+
+
+def _stepped(env_id: str, action) -> None:
+    env = gym.make(env_id)
+    env.reset(seed=0)
+    env.step(action)
+
+
+def api_cases(folder: Path) -> list[Case]:
+    """The cases over the Python API; ``folder`` holds the files they write and read."""
+    folder.mkdir(parents=True, exist_ok=True)
+    return [
+        *_agent_cases(),
+        *_predict_cases(folder),
+        *_file_cases(folder),
+        *_other_env_cases(folder),
+        *_density_cases(),
+        *_grasp_cases(),
+        *_env_cases(),
+    ]
+
+
+def _write(name: str, text: str) -> Callable[[Path], None]:
+    def setup(folder: Path) -> None:
+        path = folder / name
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(text)
+
+    return setup
+
+
+def script_cases() -> list[Case]:
+    """The cases over the scripts, each run in a folder of its own."""
+    cases = []
+
+    def add(what: str, argv: list[str], *names: str, setup=None) -> None:
+        cases.append(Case("scripts", what, argv=argv, names=names, setup=setup))
+
+    numbers = {
+        "train_rlvc.py": {
+            "--interactions": ("0", "1.5", "ten"),
+            "--seed": ("-1", "x"),
+            "--compaction-tolerance": ("1.5", "nan"),
+            "--structures": ("0",),
+            "--vocabulary-groups": ("0",),
+        },
+        "compare_baselines.py": {
+            "--seeds": ("0",),
+            "--seed0": ("-2",),
+            "--eval-starts": ("0",),
+            "--workers": ("0",),
+        },
+        "compare_compaction.py": {
+            "--seeds": ("-3",),
+            "--interactions": ("0",),
+            "--tolerance": ("-0.1", "2"),
+        },
+        "learn_grasps.py": {
+            "--distractors": ("9",),
+            "--tip-probability": ("1.5",),
+            "--cycles": ("-1", "0"),
+            "--eval-trials": ("0",),
+            "--c-rel": ("nan", "-1"),
+            "--reliability": ("-1",),
+        },
+        "bench_features.py": {"--percepts": ("0",), "--words": ("1",), "--threads": ("0",)},
+        "bench_maze_layouts.py": {"--layouts": ("-1",), "--workers": ("0",)},
+        "bench_parallel.py": {"--workers": ("0",), "--trials": ("-5",)},
+        "bench_pose.py": {"--particles": ("0",), "--workers": ("0",), "--pictures": ("-2",)},
+        "bench_rljc.py": {"--seeds": ("0",), "--interactions": ("-1",)},
+        "bench_se3.py": {"--repeats": ("0",)},
+        "estimate_pose.py": {"--scenes": ("0",), "--particles": ("-1",), "--pictures": ("-1",)},
+        "show_patches.py": {
+            "--distractors": ("9", "-1"),
+            "--image-size": ("0",),
+            "--threads": ("0",),
+        },
+    }
+    for script, flags in numbers.items():
+        for flag, values in flags.items():
+            for value in values:
+                add(f"{script} {flag} {value}", [script, flag, value], flag)
+    for script in (
+        "train_rlvc.py",
+        "compare_baselines.py",
+        "compare_compaction.py",
+        "bench_rljc.py",
+        "bench_features.py",
+    ):
+        add(f"{script} --env-kwargs '[1,2]'", [script, "--env-kwargs", "[1,2]"], "--env-kwargs")
+        add(f"{script} --env-kwargs unknown key", [script, "--env-kwargs", '{"speed": 3}'], "speed")
+        add(
+            f"{script} --env-kwargs out of range",
+            [script, "--env-kwargs", '{"gamma": 1.5}'],
+            "gamma",
+        )
+    for script in ("train_rlvc.py", "compare_baselines.py", "compare_compaction.py"):
+        add(f"{script} --env NoSuchEnv-v0", [script, "--env", "NoSuchEnv-v0"], "NoSuchEnv")
+        add(
+            f"{script} --env FrozenLake-v1 (no images)",
+            [script, "--env", "FrozenLake-v1"],
+            "FrozenLake",
+        )
+    add(
+        "compare_baselines.py --methods nonsense",
+        ["compare_baselines.py", "--methods", "dqn2"],
+        "--methods",
+    )
+    add(
+        "compare_baselines.py --device gpu", ["compare_baselines.py", "--device", "gpu"], "--device"
+    )
+    add(
+        "compare_baselines.py --device cuda:7",
+        ["compare_baselines.py", "--device", "cuda:7"],
+        "--device",
+    )
+    add("bench_pose.py --device tpu", ["bench_pose.py", "--device", "tpu"], "--device")
+    add("estimate_pose.py --device cuda:3", ["estimate_pose.py", "--device", "cuda:3"], "--device")
+    add(
+        "bench_pose.py --address nowhere",
+        ["bench_pose.py", "--address", "no.such.host:1"],
+        "--address",
+    )
+    add(
+        "bench_maze_layouts.py --address nowhere",
+        ["bench_maze_layouts.py", "--address", "no.such.host:1"],
+        "--address",
+    )
+    add("learn_grasps.py --objects teapot", ["learn_grasps.py", "--objects", "teapot"], "teapot")
+    add("bench_pose.py --objects teapot", ["bench_pose.py", "--objects", "teapot"], "teapot")
+    add("show_patches.py --cameras nowhere", ["show_patches.py", "--cameras", "nowhere"], "nowhere")
+    add(
+        "estimate_pose.py --condition foggy",
+        ["estimate_pose.py", "--condition", "foggy"],
+        "--condition",
+    )
+    add(
+        "learn_grasps.py --hypothesis magic",
+        ["learn_grasps.py", "--hypothesis", "magic"],
+        "--hypothesis",
+    )
+    # Run folders
+    resumes = {  # how each script goes on with a stopped run, and the file of its settings
+        "train_rlvc.py": ("--resume", "settings.json", "train_rlvc"),
+        "learn_grasps.py": ("--resume", "config.json", "learn_grasps"),
+        "compare_baselines.py": ("--out", "comparison.json", "compare"),
+    }
+    for script, (flag, settings, made_by) in resumes.items():
+        if flag == "--resume":
+            add(f"{script} --resume a missing folder", [script, flag, "nowhere"], "--resume")
+        for what, text, named in (
+            ("garbage", "{not json", settings),
+            ("a list", "[1, 2]", settings),
+        ):
+
+            def setup(folder, settings=settings, text=text, made_by=made_by):
+                _write("run/run.json", json.dumps({"script": made_by, "commands": []}))(folder)
+                _write(f"run/{settings}", text)(folder)
+
+            add(
+                f"{script} {flag} a folder with {what} as {settings}",
+                [script, flag, "run"],
+                named,
+                setup=setup,
+            )
+    add(
+        "train_rlvc.py --resume with other flags",
+        ["train_rlvc.py", "--resume", "run", "--seed", "4"],
+        "--seed",
+        setup=_stopped_run("train_rlvc"),
+    )
+    add(
+        "train_rlvc.py --resume with --env-kwargs",
+        ["train_rlvc.py", "--resume", "run", "--env-kwargs", '{"layout_seed": 2}'],
+        "--env-kwargs",
+        setup=_stopped_run("train_rlvc"),
+    )
+    add(
+        "train_rlvc.py --resume a finished run",
+        ["train_rlvc.py", "--resume", "run"],
+        "finished",
+        setup=_finished_run("train_rlvc"),
+    )
+    add(
+        "compare_baselines.py --out a train_rlvc.py folder",
+        ["compare_baselines.py", "--out", "run", "--quick"],
+        "train_rlvc",
+        setup=_finished_run("train_rlvc"),
+    )
+    add(
+        "train_rlvc.py --out a compare_baselines.py folder",
+        ["train_rlvc.py", "--out", "run", "--interactions", "500"],
+        "compare",
+        setup=_finished_run("compare"),
+    )
+    add(
+        "train_rlvc.py --out a file",
+        ["train_rlvc.py", "--out", "file.txt"],
+        "file.txt",
+        setup=_write("file.txt", "x"),
+    )
+    add(
+        "bench_grasp_ranking.py on a folder that is no run",
+        ["bench_grasp_ranking.py", "empty"],
+        "empty",
+        setup=lambda folder: (folder / "empty").mkdir(),
+    )
+    add(
+        "bench_grasp_ranking.py on a missing folder",
+        ["bench_grasp_ranking.py", "nowhere"],
+        "nowhere",
+    )
+    add(
+        "learn_grasps.py --resume a train_rlvc.py run",
+        ["learn_grasps.py", "--resume", "run"],
+        "train_rlvc",
+        setup=_stopped_run("train_rlvc"),
+    )
+    return cases
+
+
+def _stopped_run(script: str) -> Callable[[Path], None]:
+    def setup(folder: Path) -> None:
+        run = folder / "run"
+        run.mkdir(exist_ok=True)
+        (run / "run.json").write_text(json.dumps({"script": script, "commands": [[script]]}))
+        (run / "settings.json").write_text(
+            json.dumps(
+                {
+                    "env_id": MAZE,
+                    "env_kwargs": {},
+                    "interactions": 500,
+                    "seed": 0,
+                    "compounds": False,
+                    "compaction": False,
+                }
+            )
+        )
+
+    return setup
+
+
+def _finished_run(script: str) -> Callable[[Path], None]:
+    def setup(folder: Path) -> None:
+        _stopped_run(script)(folder)
+        (folder / "run" / "summary.json").write_text("{}")
+
+    return setup
