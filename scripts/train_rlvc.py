@@ -93,7 +93,8 @@ def main() -> None:
         run["interactions"] = args.interactions
     if args.resume is not None:
         check_resume_alone(parser, args, keep=("no_progress",))
-        saved = stopped_run_settings(parser, args.resume, "settings.json")
+        runs = ("train_rlvc", "train_rljc")  # the library functions that write its runs
+        saved = stopped_run_settings(parser, args.resume, "settings.json", runs)
         if (args.resume / "summary.json").exists():
             parser.error(f"argument --resume: {args.resume} holds a finished run (summary.json)")
         args.compounds = saved.pop("compounds", False)

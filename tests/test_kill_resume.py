@@ -38,7 +38,7 @@ RUNS = {
             "--no-progress",
         ],
         ["--no-progress"],
-        ("rljc_return", "stages", "classes", "interactions", "evaluations"),
+        ("rljc_return", "stages", "joint_classes", "interactions", "evaluations"),
     ),
     "grasps": (
         "learn_grasps.py",

@@ -74,21 +74,22 @@ def interrupt_on_sigterm() -> None:
     signal.signal(signal.SIGTERM, interrupt)
 
 
-def stopped_run_settings(parser: argparse.ArgumentParser, folder: Path, name: str) -> dict:
+def stopped_run_settings(
+    parser: argparse.ArgumentParser, folder: Path, name: str, runs: tuple[str, ...] = ()
+) -> dict:
     """The settings a stopped run wrote to ``folder/name``, for ``--resume folder``; argparse's
-    own error when the folder holds no stopped run."""
+    own error when the folder holds no stopped run, or a run of another kind than ``runs``
+    (the names its ``run.json`` may give; default: the script's own name)."""
     path = Path(folder) / name
     record = Path(folder) / "run.json"
-    script = Path(parser.prog).stem
+    runs = runs or (Path(parser.prog).stem,)
     if record.is_file():
         try:
             made_by = json.loads(record.read_text()).get("script")
         except (json.JSONDecodeError, AttributeError):
             made_by = None
-        if made_by not in (None, script):
-            parser.error(
-                f"argument --resume: {folder} holds a run of {made_by!r}, not of {script!r}"
-            )
+        if made_by is not None and made_by not in runs:
+            parser.error(f"argument --resume: {folder} holds a run of {made_by!r}, not {runs}")
     if not path.is_file():
         parser.error(f"argument --resume: {folder} holds no stopped run (no {name})")
     try:
