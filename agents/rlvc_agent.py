@@ -102,7 +102,8 @@ class RLVCAgent(VisualAgent):
             on; a percept met later takes the class most of its nearest learned percepts are
             in (default False; not with ``structures`` > 1).
         vocabulary_groups: coarse groups of the vocabulary tree; a word's group is its part
-            in compound features, so fewer groups make coarser parts (>= 1, default 64).
+            in compound features, so fewer groups make coarser parts (>= 1, default 64; at
+            most n_words are used).
         gamma: discount in [0, 1) (default: the env's ``gamma`` attribute, else 0.99).
         tensorboard_log: folder of TensorBoard runs (None, the default: no logging).
         seed: seeds the episodes, the exploration and the vocabulary (default 0).
@@ -163,10 +164,6 @@ class RLVCAgent(VisualAgent):
             )
         check_integers(vocabulary_groups=vocabulary_groups)
         check_at_least(1, vocabulary_groups=vocabulary_groups)
-        if vocabulary_groups > n_words:
-            raise ValueError(
-                f"vocabulary_groups must be <= n_words ({n_words}), got {vocabulary_groups}"
-            )
         self.vocabulary_groups = int(vocabulary_groups)
 
     @property

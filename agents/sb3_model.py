@@ -62,6 +62,11 @@ class SB3Model:
             )
 
         def convert(c: Any) -> BaseCallback:
+            if not (isinstance(c, BaseCallback) or callable(c)):
+                raise TypeError(
+                    f"callback must be an SB3 BaseCallback, a function(locals, globals) or a "
+                    f"list of them, got {c!r}"
+                )
             return c if isinstance(c, BaseCallback) else ConvertCallback(c)
 
         if callback is None or isinstance(callback, list):

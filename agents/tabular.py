@@ -116,6 +116,8 @@ class TabularQAgent(SB3Model):
             raise ValueError(f"total_timesteps must be an integer >= 0, got {total_timesteps!r}")
         if checkpoint is None and checkpoint_every is not None:
             raise ValueError("checkpoint_every needs checkpoint: the file to write to")
+        if checkpoint is not None and Path(checkpoint).is_dir():
+            raise ValueError(f"checkpoint: {checkpoint} is a folder; name a file in it")
         checkpoint_every = 10_000 if checkpoint_every is None else checkpoint_every
         check_at_least(1, checkpoint_every=checkpoint_every)
         if self.env is None:
@@ -219,7 +221,13 @@ class TabularQAgent(SB3Model):
             n_states=q.shape[0],
             n_actions=q.shape[1],
         )
-        if env is not None and (env.observation_space.n, env.action_space.n) != q.shape:
+        discrete = env is not None and all(
+            isinstance(space, gym.spaces.Discrete)
+            for space in (env.observation_space, env.action_space)
+        )
+        if env is not None and (
+            not discrete or (env.observation_space.n, env.action_space.n) != q.shape
+        ):
             raise ValueError(
                 f"{path} holds Q for {q.shape[0]} states and {q.shape[1]} actions; the env has "
                 f"{env.observation_space} and {env.action_space}"

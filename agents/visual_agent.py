@@ -215,6 +215,8 @@ class VisualAgent(SB3Model):
             )
         if self.env is None:
             raise ValueError("env: the agent has none to learn on; pass one to set_env or load")
+        if checkpoint is not None and Path(checkpoint).is_dir():
+            raise ValueError(f"checkpoint: {checkpoint} is a folder; name a file in it")
         self._check_same_env(self.env, learning=True)
         name = tb_log_name or self.learner_class.__name__
         callback = self._start_learning(callback, name, reset_num_timesteps)

@@ -227,6 +227,8 @@ class GraspTrialEnv(gym.Env):
             raise ValueError(f"tip_probability must be in [0, 1], got {tip_probability}")
         if isinstance(cameras, str):
             raise TypeError(f"cameras must be a list of camera names, got {cameras!r}")
+        if render_mode not in (None, *self.metadata["render_modes"]):
+            raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
         check_at_least(1, image_size=image_size, control_freq=control_freq)
         if not 0 <= placement_range <= TABLE_SIZE[0] / 2:
             raise ValueError(

@@ -33,7 +33,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from vistask.checks import check_at_least, checked
+from vistask.checks import check_at_least, check_canvas, check_options, check_positive, checked
 from vistask.envs.batched import BatchedCopies
 from vistask.envs.tapestry import PHOTOS, make_tapestry
 
@@ -127,6 +127,10 @@ def hill_step(
     forces = np.asarray(forces, dtype=np.float64).reshape(-1)
     if forces.shape != (len(states),):
         raise ValueError(f"need one force per state: {len(states)}, got {forces.shape}")
+    if not (np.isfinite(states).all() and np.isfinite(forces).all()):
+        raise ValueError("states and forces must be finite")
+    check_positive(dt=dt)
+    check_at_least(1, substeps=substeps)
     h = dt / substeps
     pushes = forces / MASS
     if len(states) <= _SCALAR_BATCH:
@@ -316,6 +320,7 @@ class CarPercepts:
         self.pixels_per_unit = float(pixels_per_unit)
         self.span = round(2 * MAX_POSITION * self.pixels_per_unit)
         width = self.span + self.road_width
+        check_canvas(self.height, width, "pixels_per_unit and road_width")
         self.road = paint_road(self.height, width, tile or self.height, seed, float(road_blur))
         g = self.gauge_size  # gauge geometry, in pixels of the gauge square
         self.centre = (g / 2, g / 2)
@@ -472,7 +477,7 @@ class VisualMountainCarEnv(gym.Env):
         self.action_space = spaces.Discrete(len(CAR_ACTION_NAMES))
         # The percept's two views, left to right: feature extractors run on each alone.
         self.panel_widths = (self.percepts.road_width, self.percepts.gauge_size)
-        self.state = np.zeros(2)
+        self.state: np.ndarray | None = None  # set by reset
 
     def percept_at(self, state: np.ndarray) -> np.ndarray:
         """(height, width, 3) uint8 percept of the state (p, s) (a fresh array)."""
@@ -482,7 +487,7 @@ class VisualMountainCarEnv(gym.Env):
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         """Start an episode: (observation, info), ``info["position"]`` the true state."""
         super().reset(seed=seed)
-        options = options or {}
+        options = check_options(options, ("state",))
         if "state" in options:
             state = check_states(options["state"], "start state")
             if state.shape != (1, 2):
@@ -494,7 +499,9 @@ class VisualMountainCarEnv(gym.Env):
 
     def step(self, action):
         """Take ``action``: (observation, reward, terminated, truncated, info)."""
-        if not self.action_space.contains(action):
+        if self.state is None:
+            raise RuntimeError("call reset() before step()")
+        if isinstance(action, bool | np.bool_) or not self.action_space.contains(action):
             raise ValueError(
                 f"invalid action {action!r}: expected an int in 0..{self.action_space.n - 1}"
                 f" ({', '.join(CAR_ACTION_NAMES)})"

@@ -25,6 +25,7 @@ import re
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from xml.etree import ElementTree
 
 import numpy as np
 import roma
@@ -163,6 +164,15 @@ def _mjcf_spec(path: Path) -> ObjectSpec:
 
     if not path.is_file():
         raise ValueError(f"no MJCF file at {path}")
+    try:
+        root = ElementTree.parse(path).getroot()
+    except ElementTree.ParseError as error:
+        raise ValueError(f"{path} is not valid XML ({error})") from None
+    if root.tag != "mujoco" or root.find(".//worldbody//body[@name='object']") is None:
+        raise ValueError(
+            f"{path} must be an MJCF <mujoco> model whose worldbody holds a <body "
+            'name="object"> (robosuite\'s MujocoXMLObject layout)'
+        )
     fname = str(path.resolve())
     name = re.sub(r"\W", "_", path.stem)
 

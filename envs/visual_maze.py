@@ -16,7 +16,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from vistask.checks import check_at_least, checked
+from vistask.checks import check_at_least, check_canvas, check_options, checked
 from vistask.envs.batched import BatchedCopies
 from vistask.envs.tapestry import make_tapestry, photo_canvas
 
@@ -64,9 +64,14 @@ def valid_angles(angles: np.ndarray) -> bool:
 
 
 def _rects_array(rects: tuple[Rect, ...] | list, name: str, size: float) -> np.ndarray:
-    array = np.asarray(rects, dtype=np.float64).reshape(-1, 4) if len(rects) else np.zeros((0, 4))
+    try:
+        array = np.asarray(rects, dtype=np.float64) if len(rects) else np.zeros((0, 4))
+    except (TypeError, ValueError):
+        array = np.zeros(0)
     if array.ndim != 2 or array.shape[1] != 4:
-        raise ValueError(f"{name} must be a list of (x0, y0, x1, y1) rectangles")
+        raise ValueError(f"{name} must be a list of (x0, y0, x1, y1) rectangles, got {rects!r}")
+    if not np.isfinite(array).all():
+        raise ValueError(f"{name}: rectangles must be finite, got {array.tolist()}")
     if np.any(array[:, 2] <= array[:, 0]) or np.any(array[:, 3] <= array[:, 1]):
         raise ValueError(f"{name}: every rectangle needs x0 < x1 and y0 < y1, got {array.tolist()}")
     if np.any(array < 0) or np.any(array > size):
@@ -197,6 +202,9 @@ class MazeGeometry:
         object.__setattr__(self, "exit_array", _rects_array(self.exits, "exits", self.size))
         if len(self.exit_array) == 0:
             raise ValueError("exits must hold at least one rectangle, got none")
+        grid = (np.stack(np.meshgrid(*[np.linspace(0, self.size, 201)] * 2), -1)).reshape(-1, 2)
+        if not self.is_free(grid).any():
+            raise ValueError("obstacles and exits cover the whole maze: no free place to start")
 
     def is_free(self, points: np.ndarray) -> np.ndarray:
         """(N,) bool: inside the maze, not in an obstacle and not in an exit. points (N, 2)."""
@@ -324,6 +332,11 @@ class VisualMazeEnv(gym.Env):
         self.render_mode = render_mode
         self.margin = self.window // 2
         side = int(np.ceil(size * pixels_per_unit)) + self.window + 1
+        check_canvas(side, side, "size * pixels_per_unit + window")
+        if photo is not None and (tile, tapestry_seed) != (96, 0):
+            raise ValueError(
+                "tile and tapestry_seed draw the tapestry: they act only without photo"
+            )
         if photo is None:
             self.tapestry = make_tapestry(side, side, tile=tile, seed=tapestry_seed)
         else:
@@ -331,7 +344,7 @@ class VisualMazeEnv(gym.Env):
         self.tapestry.setflags(write=False)
         self.observation_space = spaces.Box(0, 255, (self.window, self.window, 3), np.uint8)
         self.action_space = self._make_action_space()
-        self.position = np.zeros(2)
+        self.position: np.ndarray | None = None  # set by reset
 
     def _make_action_space(self) -> spaces.Space:
         """The action space; with ``_directions`` and ``_batch_directions``, all that
@@ -349,7 +362,7 @@ class VisualMazeEnv(gym.Env):
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         """Start an episode: (observation, info), ``info["position"]`` the true state."""
         super().reset(seed=seed)
-        options = options or {}
+        options = check_options(options, ("position",))
         if "position" in options:
             position = np.asarray(options["position"], dtype=np.float64)
             if position.shape != (2,) or not self.geometry.is_free(position)[0]:
@@ -361,6 +374,8 @@ class VisualMazeEnv(gym.Env):
 
     def step(self, action):
         """Take ``action``: (observation, reward, terminated, truncated, info)."""
+        if self.position is None:
+            raise RuntimeError("call reset() before step()")
         directions = self._directions(action)
         noise = self.np_random.standard_normal((1, 2))
         new, exited = self.geometry.move_towards(self.position[None], directions, noise)
@@ -372,7 +387,7 @@ class VisualMazeEnv(gym.Env):
 
     def _directions(self, action) -> np.ndarray:
         """(1, 2) move direction of one valid action; ValueError naming the action if not."""
-        if not self.action_space.contains(action):
+        if isinstance(action, bool | np.bool_) or not self.action_space.contains(action):
             raise ValueError(
                 f"invalid action {action!r}: expected an int in 0..{self.action_space.n - 1}"
                 f" ({', '.join(ACTION_NAMES)})"

@@ -97,6 +97,8 @@ def main() -> None:
     ):
         if value is not None:
             overrides[key] = value
+    if args.threads and args.workers != 1:
+        parser.error("--threads acts only with --workers 1 (side by side, a run has one thread)")
     if args.threads:
         torch.set_num_threads(args.threads)
     config = Comparison.quick(**overrides) if args.quick else Comparison(**overrides)

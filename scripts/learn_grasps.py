@@ -113,6 +113,13 @@ def main() -> None:
     if args.cycles * args.trials_per_cycle > 300:
         parser.error("the budget is at most 300 trials per object")
     if args.quick:
+        given = [
+            f"--{name.replace('_', '-')}"
+            for name in ("cycles", "trials_per_cycle", "eval_trials")
+            if getattr(args, name) != parser.get_default(name)
+        ]
+        if given:
+            parser.error(f"--quick sets the budget: drop {' '.join(given)}")
         args.cycles, args.trials_per_cycle, args.eval_trials = 2, 10, 10
     where = {"num_envs": args.num_envs, "address": args.address}
     if args.resume is not None:

@@ -9,7 +9,8 @@ import argparse
 from pathlib import Path
 
 from vistask.cli import positive_int, run_main
-from vistask.experiments.wrong_input_cases import api_cases, script_cases
+from vistask.experiments.wrong_input_cases import api_cases
+from vistask.experiments.wrong_input_scripts import script_cases
 from vistask.experiments.wrong_inputs import run_sweep
 from vistask.runs import run_dir
 

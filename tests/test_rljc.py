@@ -62,7 +62,7 @@ def test_compatible_classes_equal_brute_force_on_random_trees():
         # box satisfies every action test on j's path, so it reaches j iff x does.
         centres = (tree.box_low + tree.box_high) / 2
         percepts = torch.arange(30).repeat_interleave(tree.n_classes)
-        reached = tree.classify(presence, np.tile(centres, (30, 1)), percepts)
+        reached = tree.classify(presence, torch.as_tensor(np.tile(centres, (30, 1))), percepts)
         expected = reached.view(30, -1) == torch.arange(tree.n_classes)
         assert torch.equal(got, expected)
         # The compatible boxes tile the action space, and an action lands in the box of the

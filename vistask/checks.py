@@ -8,6 +8,7 @@ Example:
 
 from __future__ import annotations
 
+import collections.abc
 import functools
 import inspect
 import json
@@ -15,6 +16,7 @@ import math
 import numbers
 import os
 import sys
+import typing
 import warnings
 from collections.abc import Callable, Sequence
 
@@ -67,16 +69,62 @@ _SCALARS = {
 }
 
 
-def _scalar_check(annotation: object) -> Callable[[str, object], None] | None:
-    """The check of a parameter annotated with scalars (``int``, ``float | None``,
-    ``tuple[float, ...]``, ``str | Path``); None for any other annotation."""
+def _split_union(text: str) -> list[str]:
+    """``"A[B | C] | None"`` -> ``["A[B | C]", "None"]``: the options of a union."""
+    options, depth, start = [], 0, 0
+    for i, char in enumerate(text):
+        depth += {"[": 1, "]": -1}.get(char, 0)
+        if char == "|" and depth == 0:
+            options.append(text[start:i].strip())
+            start = i + 1
+    return [*options, text[start:].strip()]
+
+
+def _class_test(option: str, namespace: dict) -> tuple[str, Callable[[object], bool]] | None:
+    """(what it accepts, test) for an annotation naming a class (``SE3KDE``, ``gym.Env``,
+    ``torch.Tensor``, ``Sequence[str]``, ``Callable[...]``); None for what cannot be tested:
+    array-likes (``np.ndarray``), protocols, type variables, ``Any``, unknown names."""
+    try:
+        value = eval(option, namespace)
+    except Exception:
+        return None
+    origin = typing.get_origin(value) or value
+    if origin is collections.abc.Callable:
+        return "a function", callable
+    if (
+        not inspect.isclass(origin)
+        or origin in (typing.Any, np.ndarray)
+        or getattr(origin, "_is_protocol", False)
+    ):
+        return None
+    if origin in (collections.abc.Sequence, list, tuple):  # what a JSON list or .values() gives
+        return (
+            "a list",
+            lambda v: (
+                isinstance(v, collections.abc.Collection | np.ndarray)
+                and not isinstance(v, str | bytes | dict)
+            ),
+        )
+    name = f"{origin.__module__.split('.')[0]}.{origin.__name__}"
+    name = origin.__name__ if name.startswith(("vistask", "builtins")) else name
+    # An env class also takes its wrappers (TimeLimit, ...): gym.make's envs.
+    return (
+        f"a {name}",
+        lambda v: isinstance(v, origin) or isinstance(getattr(v, "unwrapped", None), origin),
+    )
+
+
+def _annotation_check(annotation: object, namespace: dict) -> Callable[[str, object], None] | None:
+    """The check of a parameter by its annotation: scalars (``int``, ``float | None``,
+    ``tuple[float, ...]``, ``str | Path``) and classes (``SE3KDE | None``); None when an
+    option of the annotation cannot be tested."""
     text = annotation if isinstance(annotation, str) else inspect.formatannotation(annotation)
-    text = text.replace("pathlib.", "").replace("os.", "")
+    text = text.replace("pathlib.", "").replace("os.PathLike", "Path")
     if text.startswith("tuple[") and text.endswith("]") and "|" not in text:
         items = [item.strip() for item in text[6:-1].split(",")]
         if not items or any(item not in (items[0], "...") for item in items):
             return None
-        item_check = _scalar_check(items[0])
+        item_check = _annotation_check(items[0], namespace)
         if item_check is None:
             return None
         length = None if "..." in items else len(items)
@@ -90,16 +138,17 @@ def _scalar_check(annotation: object) -> Callable[[str, object], None] | None:
                 item_check(f"{name}[{i}]", item)
 
         return check_tuple
-    options = [option.strip() for option in text.split("|")]
-    if not all(option in _SCALARS for option in options):
+    options = _split_union(text)
+    tests = [_SCALARS.get(option) or _class_test(option, namespace) for option in options]
+    if not all(tests):
         return None
-    accepted = " or ".join(_SCALARS[option][0] for option in options)
-    tests = [_SCALARS[option][1] for option in options]
+    accepted = " or ".join(what for what, _ in tests)
     finite_only = "float" in options
 
     def check(name: str, value: object) -> None:
-        if not any(test(value) for test in tests):
-            raise TypeError(f"{name} must be {accepted}, got {value!r}")
+        if not any(test(value) for _, test in tests):
+            shown = repr(value) if len(repr(value)) < 80 else f"a {type(value).__name__}"
+            raise TypeError(f"{name} must be {accepted}, got {shown}")
         if finite_only and isinstance(value, numbers.Real) and not math.isfinite(value):
             raise ValueError(f"{name} must be a finite number, got {value!r}")
 
@@ -107,11 +156,11 @@ def _scalar_check(annotation: object) -> Callable[[str, object], None] | None:
 
 
 def checked(target):
-    """Decorator: refuse an argument whose type is not the scalar its annotation names
-    (``int`` refuses 1.7 and True, ``bool`` refuses ``"False"``, ``float`` refuses a string,
-    a complex number, NaN and infinity), with an error naming the argument and its value,
-    before the call runs. On a class it checks ``__init__`` and every public method the class
-    defines.
+    """Decorator: refuse an argument whose type is not the one its annotation names, with an
+    error naming the argument and its value, before the call runs: ``int`` refuses 1.7 and
+    True, ``bool`` refuses ``"False"``, ``float`` refuses a string, a complex number, NaN and
+    infinity, ``SE3KDE`` or ``torch.Tensor`` refuse anything else, ``Sequence[str]`` refuses a
+    string. On a class it checks ``__init__`` and every public method the class defines.
 
     Example:
         >>> @checked
@@ -131,22 +180,24 @@ def checked(target):
         target.__checked__ = True
         return target
     signature = inspect.signature(target)
-    checks = {
-        name: check
-        for name, parameter in signature.parameters.items()
-        if parameter.kind not in (parameter.VAR_POSITIONAL, parameter.VAR_KEYWORD)
-        and (check := _scalar_check(parameter.annotation)) is not None
-    }
-    if not checks:
-        target.__checked__ = True
-        return target
+    checks: dict | None = None  # on the first call: annotations may name later classes
 
     @functools.wraps(target)
     def checked_call(*args, **kwargs):
-        arguments = signature.bind(*args, **kwargs).arguments
-        for name, check in checks.items():
-            if name in arguments:
-                check(name, arguments[name])
+        nonlocal checks
+        if checks is None:
+            namespace = {**vars(typing), **target.__globals__}
+            checks = {
+                name: check
+                for name, parameter in signature.parameters.items()
+                if parameter.kind not in (parameter.VAR_POSITIONAL, parameter.VAR_KEYWORD)
+                and (check := _annotation_check(parameter.annotation, namespace)) is not None
+            }
+        if checks:
+            arguments = signature.bind(*args, **kwargs).arguments
+            for name, check in checks.items():
+                if name in arguments:
+                    check(name, arguments[name])
         return target(*args, **kwargs)
 
     checked_call.__checked__ = True
@@ -169,12 +220,13 @@ def warn(message: str, category: type[Warning] = UserWarning) -> None:
 
 
 def env_identity(env) -> tuple[str, dict] | None:
-    """An env's ``gym.make`` id and arguments as plain JSON values; None for an env made
-    without ``gym.make``."""
+    """An env's ``gym.make`` id and arguments as plain JSON values, its episode length among
+    them (``max_episode_steps``); None for an env made without ``gym.make``."""
     spec = getattr(env, "spec", None)
     if spec is None:
         return None
-    return spec.id, json.loads(json.dumps(spec.kwargs, default=repr, sort_keys=True))
+    kwargs = {**spec.kwargs, "max_episode_steps": spec.max_episode_steps}
+    return spec.id, json.loads(json.dumps(kwargs, default=repr, sort_keys=True))
 
 
 def check_same_env(learned: tuple[str, dict] | None, env, learning: bool) -> None:
@@ -182,7 +234,11 @@ def check_same_env(learned: tuple[str, dict] | None, env, learning: bool) -> Non
     another id or other ``gym.make`` arguments raise ``ValueError`` when the agent would learn
     on it (its interactions would mix the two) and warn when it would only act on it."""
     now = env_identity(env)
-    if learned is None or now is None or tuple(learned) == now:
+    if learned is None or now is None:
+        return
+    if "max_episode_steps" not in learned[1]:  # a file saved before the episode length was
+        now = (now[0], {k: v for k, v in now[1].items() if k != "max_episode_steps"})
+    if tuple(learned) == now:
         return
     message = (
         f"env: the agent learned on {learned[0]} with {learned[1]}; this env is {now[0]} with "
@@ -211,3 +267,28 @@ def check_device(device) -> torch.device:
     elif device.type not in ("cpu", "meta"):
         raise ValueError(f"device must be 'cpu' or a CUDA device, got {str(device)!r}")
     return device
+
+
+MAX_CANVAS_BYTES = 2**31  # an env's pre-drawn image: beyond 2 GiB, a unit or size mistake
+
+
+def check_canvas(height: int, width: int, settings: str) -> None:
+    """Raise ``ValueError`` when an RGB canvas of ``height`` x ``width`` pixels, which the
+    ``settings`` named decide, would take more than ``MAX_CANVAS_BYTES``."""
+    size = 3 * height * width
+    if size > MAX_CANVAS_BYTES:
+        raise ValueError(
+            f"{settings} make a {height} x {width} pixel canvas of {size / 2**30:.3g} GiB "
+            f"(at most {MAX_CANVAS_BYTES / 2**30:.0f} GiB)"
+        )
+
+
+def check_options(options: dict | None, known: tuple[str, ...]) -> dict:
+    """``reset``'s options (``{}`` for None); ``ValueError`` for a key the env does not know."""
+    options = {} if options is None else options
+    if not isinstance(options, dict):
+        raise TypeError(f"options must be a dict, got {options!r}")
+    unknown = sorted(set(options) - set(known))
+    if unknown:
+        raise ValueError(f"options: unknown keys {unknown} (this env knows {list(known)})")
+    return options

@@ -21,6 +21,8 @@ def save_state(path: str | Path, kind: str, state: dict) -> Path:
     mid-write never leaves a corrupt file where a good one was.
     """
     path = Path(path)
+    if path.is_dir():
+        raise ValueError(f"path: {path} is a folder; name a file in it to save to")
     path.parent.mkdir(parents=True, exist_ok=True)
     partial = path.with_name(f".{path.name}.partial")
     torch.save({"kind": kind, "version": VERSION, "state": state}, partial)

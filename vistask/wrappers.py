@@ -77,6 +77,11 @@ class VisualClasses(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
     """
 
     def __init__(self, env: gym.Env, classifier: Classifier) -> None:
+        if not (callable(classifier) and hasattr(classifier, "n_classes")):
+            raise TypeError(
+                f"classifier must map an image to a class and have n_classes (an agent's "
+                f".classifier), got {classifier!r}"
+            )
         check_image_space(env.observation_space, "VisualClasses")
         gym.utils.RecordConstructorArgs.__init__(self, classifier=classifier)
         gym.ObservationWrapper.__init__(self, env)

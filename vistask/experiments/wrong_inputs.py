@@ -28,7 +28,8 @@ import gymnasium as gym
 
 OUTCOMES = ("clear", "unclear", "silent")
 ROOT = Path(__file__).resolve().parents[2]
-REFUSALS = (ValueError, TypeError, FileNotFoundError, gym.error.Error)
+# RuntimeError: a call out of order ("call reset() before step()"), when its message says so.
+REFUSALS = (ValueError, TypeError, FileNotFoundError, RuntimeError, gym.error.Error)
 
 
 @dataclass

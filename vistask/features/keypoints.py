@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from vistask.checks import checked
+from vistask.checks import check_at_least, checked
 
 SIFT_NORM = 512.0  # OpenCV scales SIFT descriptors to about this Euclidean norm
 # Distinct views whose keypoints ``SiftExtractor`` keeps when percepts are made of views: about
@@ -145,6 +145,8 @@ class SiftExtractor:
         self.contrast_threshold = float(contrast_threshold)
         self.max_keypoints = int(max_keypoints)
         self.color_weight = float(color_weight)
+        if threads is not None:
+            check_at_least(1, threads=threads)
         self.threads = threads or _allowed_threads()
         self.panel_widths = tuple(int(w) for w in panel_widths)
         self._edges = np.cumsum((0, *self.panel_widths))  # the views' left and right edges

@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from vistask.checks import check_at_least, checked
+from vistask.checks import check_at_least, check_positive, checked
 from vistask.features.compounds import Compound, Occurrences, add_compound_occurrences
 from vistask.features.keypoints import Keypoints, SiftExtractor, extract_once
 from vistask.kmeans import kmeans, nearest_centroids
@@ -194,6 +194,9 @@ class VisualFeatureExtractor:
         self._centroid_sq = (self.centroids * self.centroids).sum(1)
         self.groups = groups
         self._group_of = None if groups is None else groups.group_of.cpu().numpy()
+        if max_distance is not None:
+            check_positive(max_distance=max_distance)
+        check_at_least(0, cache_size=cache_size)
         self.max_distance = max_distance
         self.cache_size = cache_size
         self._cache: dict[tuple, tuple] = {}  # image digest -> (words, xy, scale)
@@ -243,9 +246,10 @@ class VisualFeatureExtractor:
             max_descriptors: random subset of descriptors used by k-means (speed).
             iters: k-means iterations.
             max_distance: see the class.
-            groups: fit a two-level vocabulary with this many coarse groups (0: flat k-means,
-                exact matching); with 8192 words, 64 groups and 3 probes match several times
-                faster, and fit much faster (``scripts/bench_features.py``).
+            groups: fit a two-level vocabulary with this many coarse groups (at most n_words
+                are used; 0: flat k-means, exact matching); with 8192 words, 64 groups and 3
+                probes match several times faster, and fit much faster
+                (``scripts/bench_features.py``).
             probes: groups searched per descriptor (with ``groups``); one probe misses the
                 nearest prototype of descriptors near a group border.
             seed: seed of the subset and of the k-means initialisation.
@@ -253,6 +257,8 @@ class VisualFeatureExtractor:
         check_at_least(2, n_words=n_words)  # one word is present in every percept
         check_at_least(1, max_descriptors=max_descriptors, iters=iters, probes=probes)
         check_at_least(0, groups=groups, seed=seed)
+        if max_distance is not None:
+            check_positive(max_distance=max_distance)
         keypoints = keypoints or SiftExtractor()
         if detected is None:
             if not images:

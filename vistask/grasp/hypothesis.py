@@ -21,8 +21,8 @@ import roma
 import torch
 import torch.nn.functional as F
 
-from vistask.checks import check_at_least, checked
-from vistask.se3 import SE3KDE, make_poses
+from vistask.checks import check_at_least, check_positive, checked
+from vistask.se3 import SE3KDE, check_poses, make_poses
 from vistask.vision import Patches
 
 
@@ -164,6 +164,9 @@ def scripted_teacher_grasps(bounds: torch.Tensor, depth: float = 0.02) -> torch.
     if bounds.shape != (2, 3):
         raise ValueError(f"bounds must have shape (2, 3), got {tuple(bounds.shape)}")
     lo, hi = bounds
+    if not (torch.isfinite(bounds).all() and (lo < hi).all()):
+        raise ValueError(f"bounds must be (min corner, max corner) with min < max, got {bounds}")
+    check_positive(depth=depth)
     centre, size = (lo + hi) / 2, hi - lo
     ex, ey = torch.eye(3, dtype=torch.float64)[:2]
     down = torch.tensor([0.0, 0.0, -1.0], dtype=torch.float64)
@@ -214,6 +217,7 @@ def demonstration_density(
     teacher = torch.as_tensor(teacher_grasps, dtype=torch.float32)
     if teacher.dim() != 2 or teacher.shape[1] != 7 or len(teacher) == 0:
         raise ValueError(f"teacher_grasps must have shape (K, 7), got {tuple(teacher.shape)}")
+    teacher = check_poses(teacher, "teacher_grasps")
     check_at_least(1, n_per_demo=n_per_demo)
     check_at_least(0, noise_t=noise_t, noise_r=noise_r)
     reps = teacher.repeat_interleave(n_per_demo, dim=0)

@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 
 import torch
 
-from vistask.checks import check_at_least, checked
+from vistask.checks import check_at_least, check_positive, checked
 from vistask.se3 import SE3KDE, check_poses
 
 
@@ -51,9 +51,14 @@ class Trials:
                 f"success must have shape ({len(grasps)},), one per grasp, got "
                 f"{tuple(success.shape)}"
             )
+        if success.dtype != torch.bool:
+            raise TypeError(f"success must be a bool tensor, got {success.dtype}")
+        cycle = torch.as_tensor(cycle)
+        if cycle.is_floating_point() or cycle.dtype == torch.bool or (cycle < 0).any():
+            raise ValueError(f"cycle must be proposal indices >= 0, got {cycle.tolist()}")
         self.grasps = torch.cat([self.grasps, grasps.float().cpu()])
-        self.success = torch.cat([self.success, success.bool().cpu()])
-        cycle = torch.as_tensor(cycle, dtype=torch.long).cpu().expand(len(success))
+        self.success = torch.cat([self.success, success.cpu()])
+        cycle = cycle.to(torch.long).cpu().expand(len(success))
         self.cycle = torch.cat([self.cycle, cycle])
 
 
@@ -129,6 +134,8 @@ def local_success_rates(
     Returns:
         (M,) rates in [0, 1], on the trials' device (the CPU).
     """
+    check_at_least(0, prior=prior)
+    check_positive(sigma_t=sigma_t, sigma_r=sigma_r)
     success = trials.success
     w = (weights / weights.mean()).float()
     at = trials.grasps[success] if at is None else at.to(trials.grasps)

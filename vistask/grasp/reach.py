@@ -124,6 +124,9 @@ def draw_reachable(
     Returns:
         (B, 7) object-frame grasps, (B, 7) world grasps, (B,) bool reachable.
     """
+    check_at_least(1, candidates=candidates, max_draws=max_draws)
+    if score is not None and candidates == 1:
+        raise ValueError("score acts only with candidates > 1: it chooses among them")
     local, world, ok = draw_candidates(
         density, object_poses, workspace, generator, max_draws, candidates
     )

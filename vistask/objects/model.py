@@ -25,11 +25,12 @@ import torch
 from scipy.cluster.vq import kmeans2
 from torch import Tensor
 
-from vistask.checks import checked
+from vistask.checks import check_at_least, checked
 from vistask.objects.depth import evenly_spaced
 from vistask.objects.pair_votes import PairTable
 from vistask.saving import load_state, save_state
 from vistask.se3 import SE3KDE, identity_poses, relative
+from vistask.se3.kernels import check_bandwidth
 from vistask.vision import Patches
 
 MIN_PATCHES_PER_CLASS = 3
@@ -193,6 +194,9 @@ class ObjectModel:
         ):
             if not value > 0:
                 raise ValueError(f"{arg} must be positive, got {value}")
+        check_bandwidth(sigma_t, sigma_r)
+        check_bandwidth(meta_sigma_t, meta_sigma_r, names=("meta_sigma_t", "meta_sigma_r"))
+        check_at_least(0, seed=seed)
         if patches.normals is None:
             raise ValueError("learning needs patches with normals (full patch frames)")
         need = 2 * MIN_PATCHES_PER_CLASS

@@ -53,6 +53,7 @@ from vistask.objects.messages import (
 )
 from vistask.objects.model import ObjectModel
 from vistask.se3 import SE3KDE, compose, identity_poses, inverse
+from vistask.se3.kernels import check_bandwidth
 from vistask.vision import Patches
 
 WIDER_CLASSES = 2.0
@@ -238,6 +239,10 @@ class NBP:
             min_matches=min_matches,
             chroma_sigma=chroma_sigma,
             refine_iters=refine_iters,
+        )
+        check_bandwidth(sigma_t, sigma_r)
+        check_bandwidth(
+            evidence_sigma_t, evidence_sigma_r, names=("evidence_sigma_t", "evidence_sigma_r")
         )
         if not floor <= 1:
             raise ValueError(f"floor must be in [0, 1], got {floor}")

@@ -176,8 +176,8 @@ class JointTree:
     def classify(
         self,
         presence: torch.Tensor,
-        actions: torch.Tensor,
-        percepts: torch.Tensor | None = None,
+        actions: torch.Tensor | np.ndarray,
+        percepts: torch.Tensor | np.ndarray | None = None,
     ) -> torch.Tensor:
         """Joint classes of (percept, action) pairs, one vectorized step per tree level.
 

@@ -9,7 +9,7 @@ import math
 
 import torch
 
-from vistask.checks import checked
+from vistask.checks import check_at_least, checked
 from vistask.se3 import kernels
 from vistask.se3.kde import SE3KDE, KernelDensity
 from vistask.se3.r3s2 import R3S2KDE
@@ -100,8 +100,10 @@ def cross_validate_bandwidth(
             sigma_r_grid = [min(sr * f, math.pi) for f in DEFAULT_FACTORS]
     grid_t = [float(s) for s in sigma_t_grid]
     grid_r = [float(s) for s in sigma_r_grid]
-    if min(grid_t) <= 0 or min(grid_r) <= 0:
-        raise ValueError("bandwidth grids must be positive")
+    for name, grid in (("sigma_t_grid", grid_t), ("sigma_r_grid", grid_r)):
+        if not grid or not all(math.isfinite(s) and s > 0 for s in grid):
+            raise ValueError(f"{name} must hold finite bandwidths > 0, got {grid}")
+    check_at_least(2, max_points=max_points)
     if points.shape[0] > max_points:
         keep = torch.randperm(points.shape[0], generator=generator)[:max_points]
         points, w = points[keep.to(points.device)], w[keep.to(points.device)]
@@ -145,8 +147,10 @@ def select_bandwidth(
             ``cross_validate_bandwidth``); unused by the rule of thumb.
     """
     if method == "rule":
-        for name, grid in (("sigma_t_grid", sigma_t_grid), ("sigma_r_grid", sigma_r_grid)):
-            if grid is not None:
+        cv_only = {"sigma_t_grid": sigma_t_grid, "sigma_r_grid": sigma_r_grid}
+        cv_only["max_points"] = None if max_points == 1000 else max_points
+        for name, value in cv_only.items():
+            if value is not None:
                 raise ValueError(f"{name} acts only with method='cv', not {method!r}")
         return rule_of_thumb_bandwidth(points, weights)
     if method == "cv":

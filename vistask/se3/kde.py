@@ -279,6 +279,8 @@ class KernelDensity:
 
     def kernel_matrix(self, points: torch.Tensor, cutoff: float | None = None) -> torch.Tensor:
         """Unnormalised kernel values K(x_q; x_i) for (Q, 3 + D) queries -> (Q, N), unweighted."""
+        if cutoff is not None and not (math.isfinite(cutoff) and cutoff > 0):
+            raise ValueError(f"cutoff must be a positive number of sigma_t, got {cutoff}")
         x, _ = self._queries(points)
         terms = self._pair_terms()
         feats, dirs = terms.query_features(x[:, :3], x[:, 3:])
@@ -321,7 +323,12 @@ class KernelDensity:
         """
         factor = _apply_weighting(fn, self._points, "fn")
         if proposal is not None:
-            factor = factor / _apply_weighting(proposal, self._points, "proposal")
+            at = _apply_weighting(proposal, self._points, "proposal")
+            if not (at > 0).all():
+                raise ValueError("proposal must be > 0 at every particle (it drew them)")
+            factor = factor / at
+        if not (self._weights * factor > 0).any():
+            raise ValueError("fn is 0 at every particle of positive weight: nothing is left")
         return self._new(self._points, self._weights * factor)
 
     # --- moments and modes ------------------------------------------------------------------
@@ -437,11 +444,15 @@ class KernelDensity:
 
 
 def _apply_weighting(fn: Weighting, points: torch.Tensor, name: str) -> torch.Tensor:
+    if not (isinstance(fn, KernelDensity) or callable(fn)):
+        raise TypeError(f"{name} must be a density or a function of the points, got {fn!r}")
     values = fn.evaluate(points) if isinstance(fn, KernelDensity) else fn(points)
     values = torch.as_tensor(values, dtype=points.dtype, device=points.device)
     if values.shape != points.shape[:1]:
         got = tuple(values.shape)
         raise ValueError(f"{name} must return shape ({points.shape[0]},), got {got}")
+    if not (torch.isfinite(values).all() and (values >= 0).all()):
+        raise ValueError(f"{name} must return finite values >= 0 at every particle")
     return values
 
 
@@ -459,7 +470,7 @@ def product(
     (the weights are then target / proposal up to a constant).
 
     Args:
-        densities: two or more densities of the same type.
+        densities: densities of the same type (one: its particles resampled).
         n: number of particles of the result.
         generator: random generator.
         sigma_t, sigma_r: bandwidth of the result (default: the first density's).
@@ -470,7 +481,8 @@ def product(
     first = _check_densities(densities)
     check_at_least(1, n=n)
     x = first.sample(n, generator)
-    weights = torch.ones(n, dtype=x.dtype, device=x.device)
+    # Summed in log space: a product of many small values would underflow where none does.
+    log_weights = torch.zeros(n, dtype=torch.float64, device=x.device)
     for k, other in enumerate(densities[1:], 1):
         values = other.evaluate(x.to(other.device))
         # Kernel values stop at a floor (see kernels.WEIGHT_HEADROOM): all there, no overlap.
@@ -479,7 +491,8 @@ def product(
                 f"densities do not overlap: densities[{k}] is nil (below float precision) at "
                 f"all {n} particles drawn from densities[0]"
             )
-        weights = weights * values.to(x.device)
+        log_weights += values.to(x.device, torch.float64).log()
+    weights = (log_weights - log_weights.max()).exp()
     return first._new(x, weights, sigma_t=sigma_t, sigma_r=sigma_r)
 
 
@@ -514,7 +527,10 @@ def mixture(
     for d in densities:
         if (d.sigma_t, d.sigma_r, d.kernel) != (first.sigma_t, first.sigma_r, first.kernel):
             raise ValueError("densities of a mixture must share their bandwidth and kernel")
-    coef = torch.ones(len(densities)) if coefficients is None else torch.as_tensor(coefficients)
+    try:
+        coef = torch.ones(len(densities)) if coefficients is None else torch.as_tensor(coefficients)
+    except (TypeError, ValueError, RuntimeError):
+        raise TypeError(f"coefficients must be numbers, got {coefficients!r}") from None
     if coef.shape != (len(densities),) or coef.is_complex():
         raise ValueError(f"coefficients must be {len(densities)} real numbers, got {coefficients}")
     if not (torch.isfinite(coef).all() and (coef >= 0).all() and (coef > 0).any()):

@@ -37,6 +37,7 @@ def floored_exp_(exponents: torch.Tensor) -> torch.Tensor:
 # Narrowest bandwidths a kernel can hold: a float32 pose resolves about 1e-7 m at 1 m and
 # 1e-7 rad, and the float64 terms below keep a kernel's exponent to 1e-6 down to these.
 SIGMA_T_MIN = 1e-5  # metres
+SIGMA_T_MAX = 1e6  # metres: wider, a unit mistake (and squares overflow)
 SIGMA_R_MIN = 1e-5  # radians
 # Largest error allowed in a kernel's exponent (a relative error of the kernel value): a term
 # whose float32 cancellation error would exceed it is computed in float64.
@@ -48,17 +49,20 @@ _EPS64 = float(torch.finfo(torch.float64).eps)
 REFUSED_EXPONENT_ERROR = 1e-3
 
 
-def check_bandwidth(sigma_t: float, sigma_r: float) -> tuple[float, float]:
-    """Validate the position and orientation bandwidths and return them as floats."""
+def check_bandwidth(
+    sigma_t: float, sigma_r: float, names: tuple[str, str] = ("sigma_t", "sigma_r")
+) -> tuple[float, float]:
+    """Validate the position and orientation bandwidths (called ``names`` in errors) and
+    return them as floats."""
     sigma_t, sigma_r = float(sigma_t), float(sigma_r)
-    if not (math.isfinite(sigma_t) and sigma_t >= SIGMA_T_MIN):
+    if not (math.isfinite(sigma_t) and SIGMA_T_MIN <= sigma_t <= SIGMA_T_MAX):
         raise ValueError(
-            f"sigma_t must be a finite number of metres >= {SIGMA_T_MIN} (narrower kernels "
+            f"{names[0]} must be in [{SIGMA_T_MIN}, {SIGMA_T_MAX:g}] metres (narrower kernels "
             f"are below what float precision holds), got {sigma_t}"
         )
     if not (math.isfinite(sigma_r) and SIGMA_R_MIN <= sigma_r <= 2 * math.pi):
         raise ValueError(
-            f"sigma_r must be in [{SIGMA_R_MIN}, 2 pi] radians (narrower kernels are below "
+            f"{names[1]} must be in [{SIGMA_R_MIN}, 2 pi] radians (narrower kernels are below "
             f"what float precision holds), got {sigma_r}"
         )
     return sigma_t, sigma_r

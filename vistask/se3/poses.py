@@ -86,9 +86,31 @@ def check_points(
     return torch.cat([translations, check_unit(points[..., 3:], f"{name} {direction}")], dim=-1)
 
 
+def _pose_args(**poses: torch.Tensor) -> None:
+    """Raise unless each is a (..., 7) pose tensor with unit quaternions (to UNIT_TOLERANCE);
+    unlike ``check_poses`` nothing is renormalised, for the operations' hot paths."""
+    for name, pose in poses.items():
+        if pose.shape[-1:] != (7,):
+            raise ValueError(
+                f"{name} must have shape (..., 7) [t, qx, qy, qz, qw], got {tuple(pose.shape)}"
+            )
+        if (
+            pose.numel()
+            and not float((pose[..., 3:].norm(dim=-1) - 1).abs().max()) <= UNIT_TOLERANCE
+        ):
+            raise ValueError(
+                f"{name} quaternions must be unit vectors (norm within {UNIT_TOLERANCE} of 1)"
+            )
+
+
 @checked
 def make_poses(translation: torch.Tensor, quaternion: torch.Tensor) -> torch.Tensor:
     """Stack (..., 3) translations and (..., 4) XYZW quaternions into (..., 7) poses."""
+    if translation.shape[-1:] != (3,) or quaternion.shape[-1:] != (4,):
+        raise ValueError(
+            f"translation must have shape (..., 3) and quaternion (..., 4), got "
+            f"{tuple(translation.shape)} and {tuple(quaternion.shape)}"
+        )
     return torch.cat(_broadcast_batch(translation, quaternion), dim=-1)
 
 
@@ -118,6 +140,8 @@ def random_poses(
 ) -> torch.Tensor:
     """(n, 7) poses with Gaussian translations (std ``translation_scale``) and uniform rotations."""
     check_at_least(0, n=n, translation_scale=translation_scale)
+    if not dtype.is_floating_point:
+        raise TypeError(f"dtype must be a float dtype, got {dtype}")
     t = translation_scale * torch.randn(n, 3, generator=generator, dtype=dtype, device=device)
     q = roma.random_unitquat(n, dtype=dtype, device=device, generator=generator)
     return torch.cat([t, q], dim=-1)
@@ -126,6 +150,7 @@ def random_poses(
 @checked
 def compose(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     """Pose composition a ∘ b (apply b, then a): (..., 7) x (..., 7) -> (..., 7), broadcast."""
+    _pose_args(a=a, b=b)
     a, b = _broadcast_batch(a, b)
     return torch.cat([apply(a, b[..., :3]), roma.quat_product(a[..., 3:], b[..., 3:])], dim=-1)
 
@@ -133,6 +158,7 @@ def compose(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
 @checked
 def inverse(a: torch.Tensor) -> torch.Tensor:
     """The inverse of each (..., 7) pose: composed with the pose, it gives the identity."""
+    _pose_args(a=a)
     rotation = roma.unitquat_to_rotmat(a[..., 3:])
     t = -torch.einsum("...ji,...j->...i", rotation, a[..., :3])  # -R^T t
     return torch.cat([t, roma.quat_conjugation(a[..., 3:])], dim=-1)
@@ -147,6 +173,9 @@ def relative(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
 @checked
 def apply(pose: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
     """Transform points by poses, R p + t: (..., 7) x (..., 3) -> (..., 3), broadcast."""
+    _pose_args(pose=pose)
+    if points.shape[-1:] != (3,):
+        raise ValueError(f"points must have shape (..., 3), got {tuple(points.shape)}")
     # Through rotation matrices: a pose that moves many points is turned into one once,
     # where quaternion products would be taken for every point (1.6-6 times faster).
     rotation = roma.unitquat_to_rotmat(pose[..., 3:])
@@ -186,12 +215,14 @@ def rigid_refit(
 @checked
 def translation_distance(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     """Euclidean distance between translations: (..., 7) x (..., 7) -> (...)."""
+    _pose_args(a=a, b=b)
     return (a[..., :3] - b[..., :3]).norm(dim=-1)
 
 
 @checked
 def rotation_distance(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     """Rotation angle in [0, pi] between the rotations of a and b (q and -q alike): -> (...)."""
+    _pose_args(a=a, b=b)
     a, b = _broadcast_batch(a, b)
     return roma.unitquat_geodesic_distance(a[..., 3:], b[..., 3:])
 
@@ -199,12 +230,14 @@ def rotation_distance(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
 @checked
 def pose_wxyz_to_xyzw(poses: torch.Tensor) -> torch.Tensor:
     """MuJoCo/robosuite boundary: [t, qw, qx, qy, qz] -> [t, qx, qy, qz, qw], (..., 7)."""
+    _pose_args(poses=poses)
     return torch.cat([poses[..., :3], roma.quat_wxyz_to_xyzw(poses[..., 3:])], dim=-1)
 
 
 @checked
 def pose_xyzw_to_wxyz(poses: torch.Tensor) -> torch.Tensor:
     """[t, qx, qy, qz, qw] -> [t, qw, qx, qy, qz] for MuJoCo/robosuite, (..., 7)."""
+    _pose_args(poses=poses)
     return torch.cat([poses[..., :3], roma.quat_xyzw_to_wxyz(poses[..., 3:])], dim=-1)
 
 

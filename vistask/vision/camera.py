@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-from vistask.checks import check_at_least, checked
+from vistask.checks import check_at_least, check_positive, checked
 
 
 def _check_camera(K: Tensor, cam_to_world: Tensor) -> None:
@@ -27,6 +27,12 @@ def _check_camera(K: Tensor, cam_to_world: Tensor) -> None:
         raise ValueError(f"K must have shape (3, 3), got {tuple(K.shape)}")
     if cam_to_world.shape != (4, 4):
         raise ValueError(f"cam_to_world must have shape (4, 4), got {tuple(cam_to_world.shape)}")
+    if not (torch.isfinite(K).all() and K[0, 0] > 0 and K[1, 1] > 0):
+        raise ValueError(f"K must be finite with focal lengths K[0, 0], K[1, 1] > 0, got {K}")
+    rotation = cam_to_world[:3, :3].double()
+    rigid = torch.allclose(rotation.T @ rotation, torch.eye(3, dtype=torch.float64), atol=1e-4)
+    if not (rigid and torch.isfinite(cam_to_world).all()):
+        raise ValueError("cam_to_world must be a rigid transform (its 3x3 block a rotation)")
 
 
 @checked
@@ -119,6 +125,9 @@ def look_at(eye: Tensor, target: Tensor, up: Tensor | None = None) -> Tensor:
     eye = torch.as_tensor(eye, dtype=torch.float64)
     target = torch.as_tensor(target, dtype=torch.float64)
     up = torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64) if up is None else up.double()
+    for name, vector in (("eye", eye), ("target", target), ("up", up)):
+        if vector.shape != (3,):
+            raise ValueError(f"{name} must have shape (3,), got {tuple(vector.shape)}")
     forward = target - eye
     if forward.norm() < 1e-9:
         raise ValueError("eye and target coincide")
@@ -150,12 +159,15 @@ def depth_buffer_to_metres(buffer: Tensor, near: float, far: float) -> Tensor:
     """
     if buffer.numel() and (buffer.min() < 0 or buffer.max() > 1):
         raise ValueError("depth buffer values must lie in [0, 1]")
+    if not 0 < near < far:
+        raise ValueError(f"near and far must satisfy 0 < near < far, got {near}, {far}")
     return near / (1.0 - buffer * (1.0 - near / far))
 
 
 @checked
 def pixel_grid(height: int, width: int, device: torch.device | str | None = None) -> Tensor:
     """(H, W, 2) pixel coordinates (u, v) of every pixel centre."""
+    check_at_least(0, height=height, width=width)
     v, u = torch.meshgrid(
         torch.arange(height, dtype=torch.float32, device=device),
         torch.arange(width, dtype=torch.float32, device=device),
@@ -254,6 +266,7 @@ class RGBDView:
         Raises:
             ValueError: when no pixel has valid depth (inside the mask).
         """
+        check_positive(max_depth=max_depth)
         valid = torch.isfinite(self.depth) & (self.depth > 0) & (self.depth < max_depth)
         if mask is not None:
             if mask.shape != self.depth.shape:

@@ -33,6 +33,7 @@ from torch import Tensor
 
 from vistask.checks import check_at_least, check_device, check_positive, checked
 from vistask.saving import load_state, save_state
+from vistask.se3.poses import check_poses
 from vistask.vision.camera import Camera, backproject
 
 _LUMA = np.array([0.299, 0.587, 0.114], dtype=np.float32)
@@ -42,8 +43,8 @@ def _pose_rt(pose: Tensor) -> tuple[Tensor, Tensor]:
     """(7,) pose -> rotation (3, 3), translation (3,)."""
     if pose.shape != (7,):
         raise ValueError(f"pose must have shape (7,), got {tuple(pose.shape)}")
-    pose = pose.float()
-    return roma.unitquat_to_rotmat(F.normalize(pose[3:], dim=0)), pose[:3]
+    pose = check_poses(pose.float(), "pose")
+    return roma.unitquat_to_rotmat(pose[3:]), pose[:3]
 
 
 @checked
@@ -309,6 +310,7 @@ class PatchExtractor:
         max_depth: float = 5.0,
     ) -> None:
         check_at_least(1, spacing=spacing, tangent_radius=tangent_radius)  # pixels
+        check_at_least(2, min_tangent_points=min_tangent_points)  # a line needs two
         if normal_radius < 0:
             raise ValueError(f"normal_radius must be >= 0 (0: no normals), got {normal_radius}")
         check_positive(color_offset=color_offset, depth_jump=depth_jump, max_depth=max_depth)
@@ -349,6 +351,9 @@ class PatchExtractor:
             ValueError: bad shapes, an empty mask, no valid depth, or no patch found.
         """
         H, W = camera.height, camera.width
+        for name, image in (("rgb", rgb), ("depth", depth)):
+            if not isinstance(image, torch.Tensor):
+                raise TypeError(f"{name} must be a torch.Tensor, got {type(image).__name__}")
         if tuple(rgb.shape) != (H, W, 3) or rgb.dtype != torch.uint8:
             raise ValueError(f"rgb must be uint8 ({H}, {W}, 3), got {rgb.dtype} {tuple(rgb.shape)}")
         if tuple(depth.shape) != (H, W):
