@@ -57,11 +57,14 @@ def main() -> None:
         default=defaults["pose_source"],
         help="act on NBP's estimates from the cameras, or on the simulator's true poses",
     )
-    parser.add_argument("--cycles", type=positive_int, default=defaults["cycles"])
+    budget = ("cycles", "trials_per_cycle", "eval_trials")  # None: the default, or --quick's
+    parser.add_argument("--cycles", type=positive_int, help=f"default {defaults['cycles']}")
     parser.add_argument(
-        "--trials-per-cycle", type=positive_int, default=defaults["trials_per_cycle"]
+        "--trials-per-cycle", type=positive_int, help=f"default {defaults['trials_per_cycle']}"
     )
-    parser.add_argument("--eval-trials", type=positive_int, default=defaults["eval_trials"])
+    parser.add_argument(
+        "--eval-trials", type=positive_int, help=f"default {defaults['eval_trials']}"
+    )
     parser.add_argument(
         "--distractors",
         type=non_negative_int,
@@ -110,17 +113,15 @@ def main() -> None:
     args = parser.parse_args()
     if args.resume is not None:
         check_resume_alone(parser, args, keep=("num_envs", "address"))
+    given = [f"--{name.replace('_', '-')}" for name in budget if getattr(args, name) is not None]
+    if args.quick and given:
+        parser.error(f"--quick sets the budget: drop {' '.join(given)}")
+    quick = {"cycles": 2, "trials_per_cycle": 10, "eval_trials": 10}
+    for name in budget:
+        if getattr(args, name) is None:
+            setattr(args, name, quick[name] if args.quick else defaults[name])
     if args.cycles * args.trials_per_cycle > 300:
         parser.error("the budget is at most 300 trials per object")
-    if args.quick:
-        given = [
-            f"--{name.replace('_', '-')}"
-            for name in ("cycles", "trials_per_cycle", "eval_trials")
-            if getattr(args, name) != parser.get_default(name)
-        ]
-        if given:
-            parser.error(f"--quick sets the budget: drop {' '.join(given)}")
-        args.cycles, args.trials_per_cycle, args.eval_trials = 2, 10, 10
     where = {"num_envs": args.num_envs, "address": args.address}
     if args.resume is not None:
         out = args.resume

@@ -145,12 +145,16 @@ def check_resume_alone(
 ) -> None:
     """With ``--resume``, argparse's error for any flag given that the stopped run's settings
     fix (all but ``--resume`` and the flags named in ``keep``, by their dest)."""
+    typed = {token.split("=")[0] for token in sys.argv[1:] if token.startswith("--")}
     given = [
         action.option_strings[0]
         for action in parser._actions
         if action.option_strings
         and action.dest not in ("help", "resume", *keep)
-        and getattr(args, action.dest) != action.default
+        and (
+            getattr(args, action.dest) != action.default
+            or any(t in action.option_strings for t in typed)  # given, if at its default
+        )
     ]
     if given:
         parser.error(

@@ -177,6 +177,12 @@ def script_cases() -> list[Case]:
         setup=_stopped_run("train_rlvc"),
     )
     add(
+        "train_rlvc.py --resume with --seed 0 (its default)",
+        ["train_rlvc.py", "--resume", "run", "--seed", "0"],
+        "--seed",
+        setup=_stopped_run("train_rlvc"),
+    )
+    add(
         "train_rlvc.py --resume with --env-kwargs",
         ["train_rlvc.py", "--resume", "run", "--env-kwargs", '{"layout_seed": 2}'],
         "--env-kwargs",
