@@ -20,7 +20,7 @@ import torch
 import vistask.envs  # noqa: F401  (registers the environments)
 from vistask.agents import RLVCAgent, TabularQAgent
 from vistask.envs import VisualMazeEnv, VisualMountainCarEnv, hill_step
-from vistask.experiments.wrong_inputs import Case
+from vistask.experiments.wrong_inputs import Case, case
 from vistask.features import SiftExtractor, VisualFeatureExtractor
 from vistask.grasp import GraspLearner, Workspace, reachable, scripted_teacher_grasps
 from vistask.grasp.importance import Trials, local_success_rates
@@ -42,10 +42,6 @@ from vistask.wrappers import VisualClasses, VisualFeatures
 MAZE = "vistask/VisualMaze-v0"
 
 
-def _case(kind: str, what: str, call, *names: str) -> Case:
-    return Case(kind, what, call, names=names)
-
-
 def _density() -> SE3KDE:
     return SE3KDE(random_poses(6, generator=torch.Generator().manual_seed(2)), sigma_t=0.05)
 
@@ -62,97 +58,97 @@ def misuse_cases(folder: Path) -> Iterator[Case]:
     poses = random_poses(4, generator=torch.Generator().manual_seed(3))
     (folder / "a_folder.pt").mkdir(parents=True, exist_ok=True)
     # Another object where one is expected
-    yield _case("objects", "RLVCAgent('vistask/VisualMaze-v0')", lambda: RLVCAgent(MAZE), "env")
-    yield _case("objects", "TabularQAgent('FrozenLake-v1')", lambda: TabularQAgent("x"), "env")
-    yield _case(
+    yield case("objects", "RLVCAgent('vistask/VisualMaze-v0')", lambda: RLVCAgent(MAZE), "env")
+    yield case("objects", "TabularQAgent('FrozenLake-v1')", lambda: TabularQAgent("x"), "env")
+    yield case(
         "objects",
         "learn(callback='print')",
         lambda: TabularQAgent(lake).learn(5, "print"),
         "callback",
     )
-    yield _case(
+    yield case(
         "objects", "learn(callback=42)", lambda: TabularQAgent(lake).learn(5, [42]), "callback"
     )
-    yield _case("objects", "GraspLearner(a tensor)", lambda: GraspLearner(poses), "hypothesis")
-    yield _case(
+    yield case("objects", "GraspLearner(a tensor)", lambda: GraspLearner(poses), "hypothesis")
+    yield case(
         "objects",
         "GraspLearner(workspace='table')",
         lambda: GraspLearner(_density(), workspace="table"),
         "workspace",
     )
-    yield _case("objects", "reachable(grasps, 'ws')", lambda: reachable(poses, "ws"), "workspace")
-    yield _case(
+    yield case("objects", "reachable(grasps, 'ws')", lambda: reachable(poses, "ws"), "workspace")
+    yield case(
         "objects",
         "density.sample(5, generator=numpy's)",
         lambda: _density().sample(5, generator=np.random.default_rng(0)),
         "generator",
     )
-    yield _case("objects", "density.reweight(2.0)", lambda: _density().reweight(2.0), "fn")
-    yield _case(
+    yield case("objects", "density.reweight(2.0)", lambda: _density().reweight(2.0), "fn")
+    yield case(
         "numbers",
         "density.reweight(negative values)",
         lambda: _density().reweight(lambda x: -torch.ones(len(x))),
         "fn",
     )
-    yield _case(
+    yield case(
         "objects",
         "mixture([d, d], 'ab')",
         lambda: mixture([_density()] * 2, "ab"),
         "coefficients",
     )
-    yield _case(
+    yield case(
         "objects", "compose(numpy, numpy)", lambda: compose(poses.numpy(), poses.numpy()), "a"
     )
-    yield _case(
+    yield case(
         "objects",
         "NBP().infer(patches, model) swapped",
         lambda: NBP().infer(poses, _density()),
         "model",
     )
-    yield _case(
+    yield case(
         "objects", "VisualClasses(maze, None)", lambda: VisualClasses(maze, None), "classifier"
     )
-    yield _case(
+    yield case(
         "objects",
         "VisualFeatures(maze, an agent)",
         lambda: VisualFeatures(maze, RLVCAgent(maze)),
         "extractor",
     )
-    yield _case(
+    yield case(
         "objects",
         "SiftExtractor(panel_widths=96)",
         lambda: SiftExtractor(panel_widths=96),
         "panel_widths",
     )
-    yield _case(
+    yield case(
         "objects",
         "TabularQAgent.load(file, env=an image env)",
         lambda: _tabular_on(folder, maze),
         "env",
     )
     # Calls out of order, files where folders are
-    yield _case(
+    yield case(
         "order", "VisualMazeEnv().step(0) before reset", lambda: VisualMazeEnv().step(0), "reset"
     )
-    yield _case(
+    yield case(
         "order",
         "VisualMountainCarEnv().step(0) before reset",
         lambda: VisualMountainCarEnv().step(0),
         "reset",
     )
-    yield _case(
+    yield case(
         "order",
         "RLVCAgent(maze).predict(image) before learn",
         lambda: RLVCAgent(maze).predict(np.zeros((64, 64, 3), np.uint8)),
         "learn",
     )
-    yield _case(
+    yield case(
         "files",
         "save into an existing folder",
         lambda: _density().save(folder / "a_folder.pt"),
         "folder",
     )
-    yield _case(
+    yield case(
         "files",
         "learn(checkpoint=a folder)",
         lambda: TabularQAgent(lake).learn(5, checkpoint=folder / "a_folder.pt"),
@@ -167,144 +163,144 @@ def misuse_cases(folder: Path) -> Iterator[Case]:
         ("window=10**6", {"window": 10**6}, "window"),
         ("photo with tile", {"photo": "hubble_deep_field", "tile": 50}, "tile"),
     ):
-        yield _case(
+        yield case(
             "env kwargs",
             f"gym.make(MAZE, {what})",
             lambda k=kwargs: gym.make(MAZE, **k).reset(seed=0),
             name,
         )
-    yield _case(
+    yield case(
         "env kwargs",
         "gym.make(car, pixels_per_unit=1e9)",
         lambda: gym.make("vistask/VisualMountainCar-v0", pixels_per_unit=1e9),
         "pixels_per_unit",
     )
-    yield _case(
+    yield case(
         "env kwargs",
         "gym.make(GraspTrial, render_mode='human')",
         lambda: gym.make("vistask/GraspTrial-v0", render_mode="rgbarray"),
         "render_mode",
     )
-    yield _case(
+    yield case(
         "env kwargs",
         "maze.reset(options={'positon': ...})",
         lambda: gym.make(MAZE).reset(options={"positon": [0.5, 0.5]}),
         "positon",
     )
-    yield _case(
+    yield case(
         "env kwargs",
         "car.reset(options={'position': ...})",
         lambda: gym.make("vistask/VisualMountainCar-v0").reset(options={"position": [0.0, 0.0]}),
         "position",
     )
-    yield _case("ranges", "maze.step(True)", lambda: _stepped(gym.make(MAZE), True), "action")
+    yield case("ranges", "maze.step(True)", lambda: _stepped(gym.make(MAZE), True), "action")
     for what, kwargs, name in (
         ("substeps=0", {"substeps": 0}, "substeps"),
         ("dt=-0.1", {"dt": -0.1}, "dt"),
     ):
-        yield _case(
+        yield case(
             "ranges",
             f"hill_step(..., {what})",
             lambda k=kwargs: hill_step(np.zeros((1, 2)), np.zeros(1), **k),
             name,
         )
-    yield _case(
+    yield case(
         "numbers",
         "hill_step(NaN state)",
         lambda: hill_step(np.array([[math.nan, 0.0]]), np.zeros(1)),
         "states",
     )
-    yield _case("ranges", "SE3KDE(sigma_t=1e200)", lambda: SE3KDE(poses, sigma_t=1e200), "sigma_t")
-    yield _case(
+    yield case("ranges", "SE3KDE(sigma_t=1e200)", lambda: SE3KDE(poses, sigma_t=1e200), "sigma_t")
+    yield case(
         "ranges",
         "random_poses(3, dtype=torch.int32)",
         lambda: random_poses(3, dtype=torch.int32),
         "dtype",
     )
-    yield _case("ranges", "compose of 6-column poses", lambda: compose(poses[:, :6], poses), "a")
-    yield _case(
+    yield case("ranges", "compose of 6-column poses", lambda: compose(poses[:, :6], poses), "a")
+    yield case(
         "numbers",
         "inverse(a zero quaternion)",
         lambda: inverse(torch.tensor([0.0, 0, 0, 0, 0, 0, 2])),
         "quaternion",
     )
-    yield _case(
+    yield case(
         "numbers",
         "rotation_distance(zeros(7), pose)",
         lambda: rotation_distance(torch.zeros(7), poses[0]),
         "quaternion",
     )
-    yield _case(
+    yield case(
         "ranges",
         "make_poses(t (3,), q (3,))",
         lambda: make_poses(torch.zeros(3), torch.zeros(3)),
         "quaternion",
     )
-    yield _case(
+    yield case(
         "ranges",
         "cross_validate_bandwidth(sigma_t_grid=[])",
         lambda: cross_validate_bandwidth(random_poses(20), sigma_t_grid=[]),
         "sigma_t_grid",
     )
-    yield _case(
+    yield case(
         "numbers",
         "cross_validate_bandwidth(sigma_t_grid=[nan, 0.01])",
         lambda: cross_validate_bandwidth(random_poses(20), sigma_t_grid=[math.nan, 0.01]),
         "sigma_t_grid",
     )
-    yield _case(
+    yield case(
         "ranges",
         "cross_validate_bandwidth(max_points=0)",
         lambda: cross_validate_bandwidth(random_poses(20), max_points=0),
         "max_points",
     )
-    yield _case(
+    yield case(
         "ranges",
         "look_at(eye (2,), target (2,))",
         lambda: look_at(torch.zeros(2), torch.ones(2)),
         "eye",
     )
-    yield _case(
+    yield case(
         "numbers", "Camera(K=zeros)", lambda: Camera(torch.zeros(3, 3), torch.eye(4), 4, 4), "K"
     )
-    yield _case(
+    yield case(
         "numbers",
         "Camera(cam_to_world=zeros)",
         lambda: Camera(torch.eye(3), torch.zeros(4, 4), 4, 4),
         "cam_to_world",
     )
-    yield _case(
+    yield case(
         "ranges",
         "depth_buffer_to_metres(near=20, far=10)",
         lambda: depth_buffer_to_metres(torch.zeros(2, 2), 20.0, 10.0),
         "near",
     )
-    yield _case("ranges", "pixel_grid(-1, 4)", lambda: pixel_grid(-1, 4), "height")
-    yield _case(
+    yield case("ranges", "pixel_grid(-1, 4)", lambda: pixel_grid(-1, 4), "height")
+    yield case(
         "ranges",
         "Trials.add(cycle=-1)",
         lambda: Trials().add(identity_poses(2), torch.ones(2, dtype=torch.bool), -1),
         "cycle",
     )
-    yield _case(
+    yield case(
         "types",
         "Trials.add(cycle=2.7)",
         lambda: Trials().add(identity_poses(2), torch.ones(2, dtype=torch.bool), 2.7),
         "cycle",
     )
-    yield _case(
+    yield case(
         "types",
         "Trials.add(success=0.5s)",
         lambda: Trials().add(identity_poses(2), torch.full((2,), 0.5), 0),
         "success",
     )
-    yield _case(
+    yield case(
         "ranges",
         "scripted_teacher_grasps(min > max)",
         lambda: scripted_teacher_grasps(torch.tensor([[0.1] * 3, [-0.1] * 3])),
         "bounds",
     )
-    yield _case(
+    yield case(
         "ranges",
         "scripted_teacher_grasps(depth=-0.05)",
         lambda: scripted_teacher_grasps(torch.tensor([[-0.1] * 3, [0.1] * 3]), -0.05),
@@ -312,20 +308,20 @@ def misuse_cases(folder: Path) -> Iterator[Case]:
     )
     trials = Trials()
     trials.add(identity_poses(2), torch.ones(2, dtype=torch.bool), 0)
-    yield _case(
+    yield case(
         "ranges",
         "local_success_rates(prior=-1)",
         lambda: local_success_rates(trials, torch.ones(2), 0.01, 0.2, prior=-1.0),
         "prior",
     )
-    yield _case("ranges", "SiftExtractor(threads=-2)", lambda: SiftExtractor(threads=-2), "threads")
-    yield _case(
+    yield case("ranges", "SiftExtractor(threads=-2)", lambda: SiftExtractor(threads=-2), "threads")
+    yield case(
         "ranges",
         "VisualFeatureExtractor.fit(max_distance=-1)",
         lambda: VisualFeatureExtractor.fit([np.zeros((8, 8, 3), np.uint8)], max_distance=-1.0),
         "max_distance",
     )
-    yield _case(
+    yield case(
         "ranges",
         "Workspace(reach=(0.5, 0.5))",
         lambda: Workspace(0.8, (0.0, 0.0, 0.9), reach=(0.5, 0.5)),

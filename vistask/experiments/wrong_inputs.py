@@ -12,14 +12,16 @@ Example:
 
 from __future__ import annotations
 
+import inspect
 import json
+import math
 import os
 import subprocess
 import sys
 import traceback
 import warnings
 from collections import Counter
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -54,6 +56,38 @@ class Case:
     names: Sequence[str] = ()
     setup: Callable[[Path], None] | None = None
     result: bool = False
+
+
+# Values of the wrong type for a parameter annotated with each scalar type.
+WRONG_TYPES = {
+    "int": (1.7, "3", True),
+    "float": ("0.5", 1j, math.nan),
+    "bool": ("False", 1, None),
+}
+
+
+def type_cases(label: str, fn: Callable, **kwargs) -> Iterator[Case]:
+    """A value of another type for every int, float and bool parameter of ``fn``, the others
+    as ``kwargs`` give them."""
+    target = fn.__init__ if inspect.isclass(fn) else fn
+    for name, parameter in inspect.signature(inspect.unwrap(target)).parameters.items():
+        annotation = parameter.annotation
+        if not isinstance(annotation, str):
+            annotation = inspect.formatannotation(annotation)
+        optional = annotation.endswith(" | None")
+        for value in WRONG_TYPES.get(annotation.removesuffix(" | None"), ()):
+            if value is None and optional:
+                continue
+
+            def call(name=name, value=value):
+                return fn(**{**kwargs, name: value})
+
+            yield Case("types", f"{label}({name}={value!r})", call, names=(name,))
+
+
+def case(kind: str, what: str, call: Callable[[], object], *names: str) -> Case:
+    """An API case whose clear answer names ``names``."""
+    return Case(kind, what, call, names=names)
 
 
 @dataclass
