@@ -1,9 +1,13 @@
-"""Argument checks shared by every learner: each error names the argument, its value and what
-would be accepted.
+"""Argument checks shared by the whole library: ``@checked`` refuses arguments of another type
+than their annotations name, the ``check_*`` functions refuse values out of range, another
+env than the one learned on, devices the machine lacks; each error names the argument, its
+value and what would be accepted.
 
 Example:
-    >>> check_at_least(1, n_particles=n_particles, n_modes=n_modes)
-    >>> check_positive(sigma_t=sigma_t, sigma_r=sigma_r)
+    >>> @checked
+    ... def fit(points: torch.Tensor, n_particles: int = 100, sigma_t: float = 0.01): ...
+    >>> check_at_least(1, n_particles=100)
+    >>> check_positive(sigma_t=0.01)
 """
 
 from __future__ import annotations
