@@ -264,8 +264,9 @@ def test_an_agent_refuses_to_learn_on_another_env_than_it_learned_on(tmp_path):
     lake = TabularQAgent(gym.make("FrozenLake-v1"), seed=0).learn(50)
     lake.save(tmp_path / "lake.pt")
     other = gym.make("FrozenLake-v1", is_slippery=False)
-    with pytest.warns(UserWarning, match="acting on another env"):
+    with pytest.warns(UserWarning, match="acting on another env") as warned:
         loaded = TabularQAgent.load(tmp_path / "lake.pt", env=other)
+    assert warned[0].filename == __file__  # the warning points at the user's line
     with pytest.raises(ValueError, match=r"is_slippery.*start a new agent"):
         loaded.learn(10)
     TabularQAgent.load(tmp_path / "lake.pt", env=gym.make("FrozenLake-v1")).learn(10)

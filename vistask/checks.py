@@ -208,16 +208,18 @@ def checked(target):
     return checked_call
 
 
-_PACKAGE = (os.path.dirname(os.path.dirname(os.path.realpath(__file__))), os.sep)
+_HERE = os.path.dirname(os.path.realpath(__file__))
+# vistask's folders; agents and envs may be links to folders beside it (an editable install).
+_PACKAGE_DIRS = tuple(
+    os.path.realpath(os.path.join(_HERE, sub)) + os.sep for sub in ("", "agents", "envs")
+)
 
 
 def warn(message: str, category: type[Warning] = UserWarning) -> None:
     """``warnings.warn`` pointing at the first caller outside vistask: the user's line."""
-    level, frame = 1, sys._getframe(1)
-    while (
-        frame is not None
-        and os.path.realpath(frame.f_code.co_filename).startswith(_PACKAGE[0] + _PACKAGE[1])
-        and "site-packages" not in frame.f_code.co_filename
+    level, frame = 2, sys._getframe(1)  # stacklevel 2: the frame that called warn
+    while frame is not None and os.path.realpath(frame.f_code.co_filename).startswith(
+        _PACKAGE_DIRS
     ):
         level, frame = level + 1, frame.f_back
     warnings.warn(message, category, stacklevel=level)
