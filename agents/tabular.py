@@ -120,8 +120,6 @@ class TabularQAgent(SB3Model):
             raise ValueError(f"checkpoint: {checkpoint} is a folder; name a file in it")
         checkpoint_every = 10_000 if checkpoint_every is None else checkpoint_every
         check_at_least(1, checkpoint_every=checkpoint_every)
-        if self.env is None:
-            raise ValueError("env: the agent has none to learn on; pass one to load")
         check_same_env(self.env_identity, self.env, learning=True)
         seeded = self._seeded  # the env is seeded once, at the agent's first step
         callback = self._start_learning(callback, tb_log_name, reset_num_timesteps)

@@ -213,8 +213,6 @@ class VisualAgent(SB3Model):
                 f"total_timesteps must be an integer >= databases ({self.databases}), "
                 f"got {total_timesteps!r}"
             )
-        if self.env is None:
-            raise ValueError("env: the agent has none to learn on; pass one to set_env or load")
         if checkpoint is not None and Path(checkpoint).is_dir():
             raise ValueError(f"checkpoint: {checkpoint} is a folder; name a file in it")
         self._check_same_env(self.env, learning=True)

@@ -18,15 +18,19 @@ import torch
 
 import vistask.envs  # noqa: F401  (registers the environments)
 from vistask.agents import Compaction, RLJCAgent, RLVCAgent, TabularQAgent
-from vistask.experiments.wrong_input_geometry import density_cases, grasp_cases
-from vistask.experiments.wrong_input_misuse import misuse_cases
+from vistask.experiments.wrong_input_geometry import (
+    density_cases,
+    grasp_cases,
+    sample_density,
+    sample_poses,
+)
+from vistask.experiments.wrong_input_misuse import misuse_cases, stepped
 from vistask.experiments.wrong_inputs import Case, case, type_cases
 from vistask.grasp import GraspLearner
 from vistask.rlvc import RLJC, RLVC
 from vistask.se3 import (
     SE3KDE,
     fit_density,
-    random_poses,
     select_bandwidth,
 )
 
@@ -50,15 +54,6 @@ def _continuous_maze() -> gym.Env:
 @cache
 def _frozen_lake() -> gym.Env:
     return gym.make("FrozenLake-v1")
-
-
-def _poses(n: int = 5, seed: int = 0) -> torch.Tensor:
-    return random_poses(n, generator=torch.Generator().manual_seed(seed))
-
-
-@cache
-def _density() -> SE3KDE:
-    return SE3KDE(_poses(), sigma_t=0.05, sigma_r=0.3)
 
 
 @cache
@@ -215,14 +210,14 @@ def _agent_cases() -> Iterator[Case]:
     yield case(
         "needs",
         "fit_density(sigma_t_grid=...) with method='rule'",
-        lambda: fit_density(_poses(20), sigma_t_grid=[0.01, 0.02]),
+        lambda: fit_density(sample_poses(20), sigma_t_grid=[0.01, 0.02]),
         "sigma_t_grid",
         "method",
     )
     yield case(
         "needs",
         "select_bandwidth(sigma_r_grid=...) with method='rule'",
-        lambda: select_bandwidth(_poses(20), sigma_r_grid=[0.1]),
+        lambda: select_bandwidth(sample_poses(20), sigma_r_grid=[0.1]),
         "sigma_r_grid",
         "method",
     )
@@ -322,7 +317,7 @@ def _file_cases(folder: Path) -> Iterator[Case]:
     empty.write_bytes(b"")
 
     def other_file() -> Path:
-        _density().save(other)
+        sample_density().save(other)
         return other
 
     for cls in (RLVCAgent, RLJCAgent, TabularQAgent, SE3KDE, RLVC, GraspLearner):
@@ -343,7 +338,7 @@ def _file_cases(folder: Path) -> Iterator[Case]:
                 lambda c=cls: c.load(other_file()),
                 "SE3KDE",
             )
-    yield case("types", "SE3KDE.save(path=3)", lambda: _density().save(3), "path")
+    yield case("types", "SE3KDE.save(path=3)", lambda: sample_density().save(3), "path")
 
 
 def _other_env_cases(folder: Path) -> Iterator[Case]:
@@ -464,21 +459,18 @@ def _env_cases() -> Iterator[Case]:
     )
     for action in (4, -1, 1.5, "up"):
         yield case(
-            "ranges", f"maze env.step({action!r})", lambda a=action: _stepped(MAZE, a), "action"
+            "ranges",
+            f"maze env.step({action!r})",
+            lambda a=action: stepped(gym.make(MAZE), a),
+            "action",
         )
     for action in ([2.0, 0.0], [math.nan], [4.0]):
         yield case(
             "ranges",
             f"continuous maze env.step({action!r})",
-            lambda a=action: _stepped(CONTINUOUS_MAZE, np.asarray(a, np.float32)),
+            lambda a=action: stepped(gym.make(CONTINUOUS_MAZE), np.asarray(a, np.float32)),
             "action",
         )
-
-
-def _stepped(env_id: str, action) -> None:
-    env = gym.make(env_id)
-    env.reset(seed=0)
-    env.step(action)
 
 
 def api_cases(folder: Path) -> list[Case]:

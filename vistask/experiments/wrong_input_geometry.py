@@ -29,23 +29,25 @@ from vistask.se3 import (
 from vistask.vision import PatchExtractor, Symmetry, intrinsics_from_fovy
 
 
-def _poses(n: int = 5, seed: int = 0) -> torch.Tensor:
+def sample_poses(n: int = 5, seed: int = 0) -> torch.Tensor:
+    """(n, 7) random poses of a seeded generator."""
     return random_poses(n, generator=torch.Generator().manual_seed(seed))
 
 
-def _density() -> SE3KDE:
-    return SE3KDE(_poses(), sigma_t=0.05, sigma_r=0.3)
+def sample_density() -> SE3KDE:
+    """A density of five random particles."""
+    return SE3KDE(sample_poses(), sigma_t=0.05, sigma_r=0.3)
 
 
 def density_cases() -> Iterator[Case]:
     """Cases over the SE(3) densities and their bandwidths, products and mixtures."""
-    points = _poses()
+    points = sample_poses()
     yield from type_cases("SE3KDE", SE3KDE, points=points)
-    yield from type_cases("density.sample", _density().sample, n=10)
-    yield from type_cases("density.modes", _density().modes)
-    yield from type_cases("density.evaluate", _density().evaluate, points=points)
+    yield from type_cases("density.sample", sample_density().sample, n=10)
+    yield from type_cases("density.modes", sample_density().modes)
+    yield from type_cases("density.evaluate", sample_density().evaluate, points=points)
     yield from type_cases("random_poses", random_poses, n=3)
-    yield from type_cases("product", product, densities=[_density(), _density()], n=10)
+    yield from type_cases("product", product, densities=[sample_density(), sample_density()], n=10)
     wrong_points = {
         "complex": lambda: points.to(torch.complex64),
         "float16": lambda: points.half(),
@@ -69,7 +71,7 @@ def density_cases() -> Iterator[Case]:
         yield case(
             "numbers",
             f"density.evaluate({what})",
-            lambda m=make: _density().evaluate(m()),
+            lambda m=make: sample_density().evaluate(m()),
             "points",
         )
     weights = {
@@ -104,20 +106,20 @@ def density_cases() -> Iterator[Case]:
         yield case(
             "ranges",
             f"density.modes({name}={value})",
-            lambda n=name, v=value: _density().modes(**{n: v}),
+            lambda n=name, v=value: sample_density().modes(**{n: v}),
             name,
         )
-    yield case("ranges", "density.sample(-1)", lambda: _density().sample(-1), "n")
+    yield case("ranges", "density.sample(-1)", lambda: sample_density().sample(-1), "n")
     yield case(
         "ranges",
         "density.evaluate(chunk_size=0)",
-        lambda: _density().evaluate(points, chunk_size=0),
+        lambda: sample_density().evaluate(points, chunk_size=0),
         "chunk_size",
     )
     yield case(
         "ranges",
         "density.evaluate(cutoff=-1)",
-        lambda: _density().evaluate(points, cutoff=-1.0),
+        lambda: sample_density().evaluate(points, cutoff=-1.0),
         "cutoff",
     )
     yield case("ranges", "random_poses(-1)", lambda: random_poses(-1), "n")
@@ -129,24 +131,24 @@ def density_cases() -> Iterator[Case]:
     )
     yield case("ranges", "identity_poses(-2)", lambda: identity_poses(-2), "batch")
     yield case("ranges", "product([])", lambda: product([], 10), "densities")
-    yield case("ranges", "product([d, d], n=0)", lambda: product([_density()] * 2, 0), "n")
+    yield case("ranges", "product([d, d], n=0)", lambda: product([sample_density()] * 2, 0), "n")
     yield case("ranges", "mixture([])", lambda: mixture([]), "densities")
     yield case(
         "numbers",
         "mixture(coefficients=[-1, 2])",
-        lambda: mixture([_density()] * 2, [-1.0, 2.0]),
+        lambda: mixture([sample_density()] * 2, [-1.0, 2.0]),
         "coefficients",
     )
     yield case(
         "numbers",
         "mixture(coefficients of another length)",
-        lambda: mixture([_density()] * 2, [1.0]),
+        lambda: mixture([sample_density()] * 2, [1.0]),
         "coefficients",
     )
     yield case(
         "types",
         "product([SE3KDE, R3S2KDE])",
-        lambda: product([_density(), R3S2KDE.from_se3(_density())], 10),
+        lambda: product([sample_density(), R3S2KDE.from_se3(sample_density())], 10),
         "densities",
     )
     yield Case(
@@ -163,11 +165,11 @@ def density_cases() -> Iterator[Case]:
         lambda: _peaks_at_particles(SE3KDE(points, sigma_t=0.01, sigma_r=1e-4)),
         result=True,
     )
-    far = SE3KDE(_poses() + torch.tensor([100.0, 0, 0, 0, 0, 0, 0]), sigma_t=0.01)
+    far = SE3KDE(sample_poses() + torch.tensor([100.0, 0, 0, 0, 0, 0, 0]), sigma_t=0.01)
     yield case(
         "numbers",
         "product of two far-apart densities",
-        lambda: product([_density(), far], 50),
+        lambda: product([sample_density(), far], 50),
         "overlap",
     )
     yield case(

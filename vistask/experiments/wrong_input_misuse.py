@@ -20,6 +20,7 @@ import torch
 import vistask.envs  # noqa: F401  (registers the environments)
 from vistask.agents import RLVCAgent, TabularQAgent
 from vistask.envs import VisualMazeEnv, VisualMountainCarEnv, hill_step
+from vistask.experiments.wrong_input_geometry import sample_density
 from vistask.experiments.wrong_inputs import Case, case
 from vistask.features import SiftExtractor, VisualFeatureExtractor
 from vistask.grasp import GraspLearner, Workspace, reachable, scripted_teacher_grasps
@@ -42,11 +43,8 @@ from vistask.wrappers import VisualClasses, VisualFeatures
 MAZE = "vistask/VisualMaze-v0"
 
 
-def _density() -> SE3KDE:
-    return SE3KDE(random_poses(6, generator=torch.Generator().manual_seed(2)), sigma_t=0.05)
-
-
-def _stepped(env: gym.Env, action) -> None:
+def stepped(env: gym.Env, action) -> None:
+    """Reset ``env`` and take ``action`` in it."""
     env.reset(seed=0)
     env.step(action)
 
@@ -73,27 +71,27 @@ def misuse_cases(folder: Path) -> Iterator[Case]:
     yield case(
         "objects",
         "GraspLearner(workspace='table')",
-        lambda: GraspLearner(_density(), workspace="table"),
+        lambda: GraspLearner(sample_density(), workspace="table"),
         "workspace",
     )
     yield case("objects", "reachable(grasps, 'ws')", lambda: reachable(poses, "ws"), "workspace")
     yield case(
         "objects",
         "density.sample(5, generator=numpy's)",
-        lambda: _density().sample(5, generator=np.random.default_rng(0)),
+        lambda: sample_density().sample(5, generator=np.random.default_rng(0)),
         "generator",
     )
-    yield case("objects", "density.reweight(2.0)", lambda: _density().reweight(2.0), "fn")
+    yield case("objects", "density.reweight(2.0)", lambda: sample_density().reweight(2.0), "fn")
     yield case(
         "numbers",
         "density.reweight(negative values)",
-        lambda: _density().reweight(lambda x: -torch.ones(len(x))),
+        lambda: sample_density().reweight(lambda x: -torch.ones(len(x))),
         "fn",
     )
     yield case(
         "objects",
         "mixture([d, d], 'ab')",
-        lambda: mixture([_density()] * 2, "ab"),
+        lambda: mixture([sample_density()] * 2, "ab"),
         "coefficients",
     )
     yield case(
@@ -102,7 +100,7 @@ def misuse_cases(folder: Path) -> Iterator[Case]:
     yield case(
         "objects",
         "NBP().infer(patches, model) swapped",
-        lambda: NBP().infer(poses, _density()),
+        lambda: NBP().infer(poses, sample_density()),
         "model",
     )
     yield case(
@@ -145,7 +143,7 @@ def misuse_cases(folder: Path) -> Iterator[Case]:
     yield case(
         "files",
         "save into an existing folder",
-        lambda: _density().save(folder / "a_folder.pt"),
+        lambda: sample_density().save(folder / "a_folder.pt"),
         "folder",
     )
     yield case(
@@ -193,7 +191,7 @@ def misuse_cases(folder: Path) -> Iterator[Case]:
         lambda: gym.make("vistask/VisualMountainCar-v0").reset(options={"position": [0.0, 0.0]}),
         "position",
     )
-    yield case("ranges", "maze.step(True)", lambda: _stepped(gym.make(MAZE), True), "action")
+    yield case("ranges", "maze.step(True)", lambda: stepped(gym.make(MAZE), True), "action")
     for what, kwargs, name in (
         ("substeps=0", {"substeps": 0}, "substeps"),
         ("dt=-0.1", {"dt": -0.1}, "dt"),

@@ -28,6 +28,12 @@ def check_unit(u: torch.Tensor, name: str, tolerance: float = UNIT_TOLERANCE) ->
     Returns:
         (..., D) the same vectors divided by their norms.
     """
+    return u / _unit_norms(u, name, tolerance)
+
+
+def _unit_norms(u: torch.Tensor, name: str, tolerance: float = UNIT_TOLERANCE) -> torch.Tensor:
+    """(..., 1) norms of the vectors along the last axis; ValueError naming ``name`` unless
+    each is within ``tolerance`` of 1."""
     norms = u.norm(dim=-1, keepdim=True)
     # One read of the worst deviation (NaN when a value is not finite) checks both.
     worst = (norms - 1.0).abs().max().item() if u.numel() else 0.0
@@ -38,7 +44,7 @@ def check_unit(u: torch.Tensor, name: str, tolerance: float = UNIT_TOLERANCE) ->
             f"{name} must be unit vectors (norm within {tolerance} of 1); the worst norm is off by "
             f"{worst:.3g}"
         )
-    return u / norms
+    return norms
 
 
 @checked
@@ -94,13 +100,7 @@ def _pose_args(**poses: torch.Tensor) -> None:
             raise ValueError(
                 f"{name} must have shape (..., 7) [t, qx, qy, qz, qw], got {tuple(pose.shape)}"
             )
-        if (
-            pose.numel()
-            and not float((pose[..., 3:].norm(dim=-1) - 1).abs().max()) <= UNIT_TOLERANCE
-        ):
-            raise ValueError(
-                f"{name} quaternions must be unit vectors (norm within {UNIT_TOLERANCE} of 1)"
-            )
+        _unit_norms(pose[..., 3:], f"{name} quaternions")
 
 
 @checked
