@@ -10,6 +10,7 @@ from typing import Any, ClassVar
 
 import gymnasium as gym
 import numpy as np
+import psutil
 import torch
 
 from vistask.agents.progress import LearnProgress
@@ -24,13 +25,29 @@ from vistask.checks import (
     warn,
 )
 from vistask.features import SiftExtractor, VisualFeatureExtractor
-from vistask.features.vocabulary import VOCABULARY_GROUPS
-from vistask.rlvc import InteractionDatabase, StageRecord, check_image_env, collect
+from vistask.features.vocabulary import CACHE_SIZE, VOCABULARY_GROUPS
+from vistask.rlvc import (
+    InteractionDatabase,
+    StageRecord,
+    Transitions,
+    check_image_env,
+    collect_chunks,
+)
+from vistask.rlvc.split import TABLE_CELLS
 from vistask.saving import load_state, save_state
 
 MAX_BLOCKED = 2  # an epsilon-greedy episode ends after this many blocked moves in a row
 VOCABULARY_SAMPLE = 20_000  # descriptors that k-means fits the vocabulary on
 SIFT_CHUNK = 1024  # percepts of the first database extracted between two bar updates
+PERCEPTS_PER_CHUNK = 16_384  # images a database holds at once while it is collected
+# What ``memory_needed_mb`` counts, in bytes: an occurrence (image, word, x, y, scale and part
+# as 32-bit numbers) and the split search's pairs of each keypoint of a percept (two int64,
+# and its temporaries: deltas, keys); an interaction's percept ids, action, reward, terminal
+# flag and position; a SIFT descriptor (128 float32); a cached percept besides its keypoints.
+OCCURRENCE_BYTES, PAIR_BYTES, INTERACTION_BYTES = 24, 56, 49
+DESCRIPTOR_BYTES, CACHE_ENTRY_BYTES = 512, 600
+COMPOUND_ROOM = 256  # compound features a run makes, at most about
+UNCAPPED_KEYPOINTS = 128  # keypoints counted per percept when max_keypoints is 0
 
 
 def space_state(space: gym.spaces.Discrete | gym.spaces.Box) -> dict:
@@ -216,6 +233,7 @@ class VisualAgent(SB3Model):
         if checkpoint is not None and Path(checkpoint).is_dir():
             raise ValueError(f"checkpoint: {checkpoint} is a folder; name a file in it")
         self._check_same_env(self.env, learning=True)
+        self._check_memory(total_timesteps)
         name = tb_log_name or self.learner_class.__name__
         callback = self._start_learning(callback, name, reset_num_timesteps)
         plan, self._plan = self._plan, None
@@ -262,6 +280,33 @@ class VisualAgent(SB3Model):
             )
         return self
 
+    def memory_needed_mb(self, total_timesteps: int) -> float:
+        """About how many MB of memory ``learn(total_timesteps)`` takes at its peak beyond what
+        the process holds before it: the databases (joined with the earlier ones), one chunk
+        of images, the vocabulary's descriptors and the split search's tables."""
+        keypoints = self.max_keypoints or UNCAPPED_KEYPOINTS
+        interactions = self.num_timesteps + total_timesteps
+        per_interaction = (
+            -(-(self.n_words + COMPOUND_ROOM) // 8)  # presence bits of its percept
+            + keypoints * (OCCURRENCE_BYTES + PAIR_BYTES)
+            + INTERACTION_BYTES
+        )
+        image = int(np.prod(self.observation_space.shape))
+        chunk = PERCEPTS_PER_CHUNK * (image + keypoints * DESCRIPTOR_BYTES)
+        cache = min(interactions, CACHE_SIZE) * (keypoints * 16 + CACHE_ENTRY_BYTES)
+        # A database is held twice while it joins the earlier ones.
+        need = 2 * interactions * per_interaction + chunk + cache + TABLE_CELLS * 30
+        return need / 2**20
+
+    def _check_memory(self, total_timesteps: int) -> None:
+        need, free = self.memory_needed_mb(total_timesteps), psutil.virtual_memory().available
+        if need > free / 2**20:
+            raise MemoryError(
+                f"learn({total_timesteps}) would need about {need:.0f} MB more memory at its "
+                f"peak, and {free / 2**20:.0f} MB are available: collect fewer interactions, "
+                "lower n_words or max_keypoints, or free memory"
+            )
+
     @property
     def rewards_seen(self) -> int:
         """Interactions with a nonzero reward in the database learned on (0 before
@@ -269,12 +314,12 @@ class VisualAgent(SB3Model):
         return 0 if self.database is None else int((self.database.rewards != 0).sum())
 
     def _add_database(self, size: int, progress: LearnProgress) -> None:
-        """Collect ``size`` interactions and add them to the database (the first database
-        also fits the vocabulary and starts the learner)."""
-        t0 = time.perf_counter()
+        """Collect ``size`` interactions and add them to the database (the first chunk of the
+        first database also fits the vocabulary and starts the learner). The images of one
+        chunk are held at a time: each chunk is reduced to its features before the next."""
         exploring = self.learner is not None
         n_envs = self.n_envs if exploring else 1
-        transitions = collect(
+        chunks = collect_chunks(
             self.env,
             size,
             self._exploration_policy if exploring else None,
@@ -282,45 +327,65 @@ class VisualAgent(SB3Model):
             max_blocked=MAX_BLOCKED if exploring else None,
             n_envs=n_envs,
             on_step=progress.update,
+            chunk_percepts=PERCEPTS_PER_CHUNK,
         )
         self._next_seed += n_envs  # no two databases share an episode seed
-        self._log_returns(transitions.episode_returns, progress)
-        t1 = time.perf_counter()
-        detected, fitting = None, 0.0  # later databases: the cache holds what the policy saw
-        if self.extractor is None:
-            panel_widths = getattr(self.env.unwrapped, "panel_widths", ())
-            keypoints = SiftExtractor(
-                self.contrast_threshold, self.max_keypoints, panel_widths=panel_widths
+        parts, returns = [], []
+        while True:
+            t0 = time.perf_counter()
+            transitions = next(chunks, None)
+            t1 = time.perf_counter()
+            self.timing["collect"] += t1 - t0
+            if transitions is None:
+                break
+            returns.append(transitions.episode_returns)
+            vocabulary = self.timing["vocabulary"]
+            # Later chunks and databases: the cache holds what the policy saw.
+            detected = None
+            if self.extractor is None:
+                detected = self._fit_vocabulary(transitions, progress)
+            progress.phase("features")
+            parts.append(
+                InteractionDatabase.build(
+                    transitions, self.extractor, detected, self.learner.compounds
+                )
             )
-            progress.phase("SIFT")
-            percepts, detected = transitions.percepts, []
-            for start in range(0, len(percepts), SIFT_CHUNK):
-                detected += keypoints.batch(percepts[start : start + SIFT_CHUNK])
-                progress.show(sift=f"{len(detected)}/{len(percepts)}")
-            t2 = time.perf_counter()
-            progress.phase("vocabulary")
-            self.extractor = VisualFeatureExtractor.fit(
-                detected=detected,
-                n_words=self._vocabulary_size(detected),
-                keypoints=keypoints,
-                max_descriptors=VOCABULARY_SAMPLE,
-                iters=10,
-                groups=self.vocabulary_groups,
-                seed=self.seed,
-            )
-            self.learner = self._new_learner()
-            fitting = time.perf_counter() - t2
-        progress.phase("features")
-        latest = InteractionDatabase.build(
-            transitions, self.extractor, detected, self.learner.compounds
-        )
+            fitting = self.timing["vocabulary"] - vocabulary  # SIFT and words only
+            self.timing["extract"] += time.perf_counter() - t1 - fitting
+            self.num_timesteps += len(transitions)
+            progress.phase("collecting")
+        self._log_returns(np.concatenate(returns), progress)
+        latest = InteractionDatabase.concat(*parts)
         self.database = (
             latest if self.database is None else InteractionDatabase.concat(self.database, latest)
         )
-        self.timing["collect"] += t1 - t0
-        self.timing["extract"] += time.perf_counter() - t1 - fitting
-        self.timing["vocabulary"] += fitting
-        self.num_timesteps += len(transitions)
+
+    def _fit_vocabulary(self, transitions: Transitions, progress: LearnProgress) -> list:
+        """SIFT on the first chunk's percepts, the vocabulary fitted on their descriptors and
+        the learner made; the keypoints detected."""
+        panel_widths = getattr(self.env.unwrapped, "panel_widths", ())
+        keypoints = SiftExtractor(
+            self.contrast_threshold, self.max_keypoints, panel_widths=panel_widths
+        )
+        progress.phase("SIFT")
+        percepts, detected = transitions.percepts, []
+        for start in range(0, len(percepts), SIFT_CHUNK):
+            detected += keypoints.batch(percepts[start : start + SIFT_CHUNK])
+            progress.show(sift=f"{len(detected)}/{len(percepts)}")
+        t0 = time.perf_counter()
+        progress.phase("vocabulary")
+        self.extractor = VisualFeatureExtractor.fit(
+            detected=detected,
+            n_words=self._vocabulary_size(detected),
+            keypoints=keypoints,
+            max_descriptors=VOCABULARY_SAMPLE,
+            iters=10,
+            groups=self.vocabulary_groups,
+            seed=self.seed,
+        )
+        self.learner = self._new_learner()
+        self.timing["vocabulary"] += time.perf_counter() - t0
+        return detected
 
     def _log_returns(self, returns: np.ndarray, progress: LearnProgress) -> None:
         """Mean return of the episodes a database's collection ended, in the bar and as SB3's

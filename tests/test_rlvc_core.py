@@ -13,12 +13,14 @@ from vistask.rlvc import (
     ClassTree,
     InteractionDatabase,
     collect,
+    collect_chunks,
     estimate_mdp,
     find_splits,
     td_errors,
     value_iteration,
     vector_copies,
 )
+from vistask.rlvc import split as split_module
 
 
 def sparse(presence: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -111,7 +113,10 @@ def brute_force_splits(
     return best
 
 
-def test_split_search_equals_a_per_class_brute_force():
+@pytest.mark.parametrize("table_cells", [None, 40, 130])
+def test_split_search_equals_a_per_class_brute_force(table_cells, monkeypatch):
+    if table_cells is not None:  # the (group, feature) table counted one to three groups a time
+        monkeypatch.setattr(split_module, "TABLE_CELLS", table_cells)
     rng = np.random.default_rng(3)
     n, f, n_states, n_actions = 1500, 40, 5, 3
     presence = torch.from_numpy(rng.random((n, f)) < 0.4)
@@ -153,6 +158,18 @@ def test_split_search_equals_a_per_class_brute_force():
     assert {(s.state, s.action, s.feature) for s in splits} == {
         (state, e[1], e[2]) for state, e in expected.items()
     }
+
+
+def test_split_search_in_blocks_of_groups_gives_the_one_tables_splits(monkeypatch):
+    db = synthetic_chain(n_states=6, n=4000)
+    rows, features = db.interaction_features()
+    rng = np.random.default_rng(0)
+    states = torch.from_numpy(rng.integers(0, 40, len(db)))
+    deltas = torch.from_numpy(rng.normal(0, 1, len(db))) + 2.0 * db.presence[db.obs, 1]
+    args = (rows, features, states, db.actions, deltas, 40, 2, db.n_features)
+    whole = find_splits(*args)
+    monkeypatch.setattr(split_module, "TABLE_CELLS", 3 * db.n_features)  # 27 blocks
+    assert whole and find_splits(*args) == whole
 
 
 def test_value_iteration_matches_a_hand_solved_mdp():
@@ -294,6 +311,23 @@ def test_collecting_and_learning_run_on_base_pages_and_restore_numpys_setting():
             inside.clear()
     finally:
         _set_madvise_hugepage(original)
+
+
+def test_chunks_hold_the_interactions_of_one_collection():
+    env = gym.make("vistask/VisualMaze-v0")
+    whole = collect(env, 1500, seed=3, n_envs=8, max_blocked=2)
+    parts = list(collect_chunks(env, 1500, seed=3, n_envs=8, max_blocked=2, chunk_percepts=400))
+    assert len(parts) > 2 and all(len(p.percepts) <= 400 + 8 for p in parts)
+
+    def interactions(t):
+        views = np.stack(t.percepts)
+        return views[t.obs], t.actions, t.rewards, views[t.next_obs], t.terminal, t.positions[t.obs]
+
+    for a, b in zip(interactions(whole), zip(*map(interactions, parts), strict=True), strict=True):
+        assert np.array_equal(a, np.concatenate(b))
+    assert np.array_equal(whole.episode_returns, np.concatenate([p.episode_returns for p in parts]))
+    with pytest.raises(ValueError, match="chunk_percepts"):
+        next(collect_chunks(env, 100, n_envs=8, chunk_percepts=4))
 
 
 def test_side_by_side_episodes_are_seeded_and_stay_linked():

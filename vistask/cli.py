@@ -128,11 +128,12 @@ def ray_address(text: str) -> str:
 
 def run_main(main: Callable[[], object]) -> None:
     """Run a script's ``main``; an input refused on the way (``ValueError``, ``TypeError``,
-    ``FileNotFoundError``, a gymnasium error) ends it with one line, as argparse's errors do
-    (exit status 2). ``VISTASK_TRACEBACK=1`` shows the traceback instead."""
+    ``FileNotFoundError``, a gymnasium error) or a run that would not fit in memory
+    (``MemoryError``) ends it with one line, as argparse's errors do (exit status 2).
+    ``VISTASK_TRACEBACK=1`` shows the traceback instead."""
     try:
         main()
-    except (ValueError, TypeError, FileNotFoundError, gym.error.Error) as error:
+    except (ValueError, TypeError, FileNotFoundError, MemoryError, gym.error.Error) as error:
         if os.environ.get("VISTASK_TRACEBACK"):
             raise
         print(f"{Path(sys.argv[0]).name}: error: {error}", file=sys.stderr)

@@ -1,9 +1,13 @@
-"""How the heavy parts of a run take memory from the kernel."""
+"""How the heavy parts of a run take memory from the kernel, and how much they take."""
 
 from __future__ import annotations
 
+import resource
+import threading
 from collections.abc import Iterator
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
+
+import psutil
 
 try:
     from numpy._core.multiarray import _set_madvise_hugepage
@@ -36,3 +40,48 @@ def base_pages() -> Iterator[None]:
         yield
     finally:
         _set_madvise_hugepage(before)
+
+
+class PeakMemory:
+    """Peak resident memory of this process and its children, in MB, inside the block.
+
+    A thread sums the resident memory of the process tree every ``every`` seconds; the
+    process's own peak (``ru_maxrss``, which the kernel keeps exactly) is a lower bound that
+    catches a spike between two samples.
+
+    Example:
+        >>> with PeakMemory() as memory:
+        ...     agent.learn(40_000)
+        >>> memory.peak_mb
+
+    Args:
+        every: seconds between two samples (> 0, default 0.05).
+    """
+
+    def __init__(self, every: float = 0.05) -> None:
+        self.every, self.peak_mb = every, 0.0
+        self._done = threading.Event()
+        self._thread = threading.Thread(target=self._sample, daemon=True)
+
+    def _tree_mb(self) -> float:
+        process = psutil.Process()
+        total = 0
+        for p in [process, *process.children(recursive=True)]:
+            with suppress(psutil.Error):  # a child that ended meanwhile
+                total += p.memory_info().rss
+        return total / 2**20
+
+    def _sample(self) -> None:
+        while not self._done.wait(self.every):
+            self.peak_mb = max(self.peak_mb, self._tree_mb())
+
+    def __enter__(self) -> PeakMemory:
+        self.peak_mb = self._tree_mb()
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self._done.set()
+        self._thread.join()
+        own = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # KB on Linux
+        self.peak_mb = max(self.peak_mb, self._tree_mb(), own)

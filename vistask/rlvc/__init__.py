@@ -1,7 +1,7 @@
-"""RLVC: reinforcement learning of visual classes (interaction database, class tree or BDD, Q
-solver, split search, compaction, learner, new percepts by the nearest learned ones, fused
-structures acting as a committee), and RLJC: joint classes of percepts and continuous actions
-(joint tree, learner)."""
+"""RLVC: reinforcement learning of visual classes (interaction database and its presence bits,
+class tree or BDD, Q solver, split search, compaction, learner, new percepts by the nearest
+learned ones, fused structures acting as a committee), and RLJC: joint classes of percepts and
+continuous actions (joint tree, learner)."""
 
 from vistask.rlvc.bdd import ClassBDD
 from vistask.rlvc.classifier import JointClassifier, VisualClassifier
@@ -12,11 +12,13 @@ from vistask.rlvc.database import (
     Transitions,
     check_image_env,
     collect,
+    collect_chunks,
     random_policy,
     vector_copies,
 )
 from vistask.rlvc.joint_tree import JointTree
 from vistask.rlvc.learner import RLVC, StageRecord
+from vistask.rlvc.presence import PackedPresence
 from vistask.rlvc.rljc import RLJC, joint_values
 from vistask.rlvc.seen import SeenPercepts
 from vistask.rlvc.solver import ClassMDP, estimate_mdp, state_values, td_errors, value_iteration
@@ -33,6 +35,7 @@ __all__ = [
     "InteractionDatabase",
     "JointClassifier",
     "JointTree",
+    "PackedPresence",
     "SeenPercepts",
     "Split",
     "StageRecord",
@@ -42,6 +45,7 @@ __all__ = [
     "acceptable",
     "check_image_env",
     "collect",
+    "collect_chunks",
     "estimate_mdp",
     "find_splits",
     "find_threshold_splits",

@@ -34,6 +34,7 @@ import numpy as np
 import torch
 
 from vistask.checks import checked, warn
+from vistask.rlvc.presence import PackedPresence
 
 try:
     from dd import cudd as _dd
@@ -201,7 +202,7 @@ class ClassBDD:
         self._update_selected()
 
     def simplify(
-        self, presence: torch.Tensor, allowed: torch.Tensor | None = None
+        self, presence: torch.Tensor | PackedPresence, allowed: torch.Tensor | None = None
     ) -> tuple[list[int], torch.Tensor]:
         """Drop every feature whose absence moves none of these percepts out of its class, or
         only into classes ``allowed`` for it.
@@ -290,7 +291,7 @@ class ClassBDD:
                 alive |= {n for c, (_, n) in step["splits"].items() if c in alive}
         return torch.tensor([c in alive for c in range(self.n_classes)])
 
-    def classify(self, presence: torch.Tensor) -> torch.Tensor:
+    def classify(self, presence: torch.Tensor | PackedPresence) -> torch.Tensor:
         """(N, F) bool presence -> (N,) long class ids, all rows at once."""
         if presence.ndim != 2 or presence.shape[1] != self.n_features:
             raise ValueError(

@@ -17,6 +17,7 @@ import torch
 
 from vistask.checks import checked
 from vistask.rlvc.bdd import ClassBDD
+from vistask.rlvc.presence import PackedPresence
 
 
 @checked
@@ -55,7 +56,7 @@ class Committee:
                 )
         return cls([history_only(s) for s in structures], [v.double() for v in q])
 
-    def classify(self, presence: torch.Tensor) -> torch.Tensor:
+    def classify(self, presence: torch.Tensor | PackedPresence) -> torch.Tensor:
         """(N, K) the class that each of the K structures puts each percept in (``presence``
         (N, F) bool)."""
         return torch.stack([s.classify(presence) for s in self.structures], 1)
@@ -64,7 +65,7 @@ class Committee:
         """(N, A) mean over the structures of their Q of ``classes`` (N, K), ``classify``'s."""
         return sum(q[classes[:, k]] for k, q in enumerate(self.q)) / len(self.q)
 
-    def greedy(self, presence: torch.Tensor) -> torch.Tensor:
+    def greedy(self, presence: torch.Tensor | PackedPresence) -> torch.Tensor:
         """(N,) the action of best mean Q of each percept (``presence`` (N, F) bool)."""
         return self.mean_q(self.classify(presence)).argmax(dim=1)
 

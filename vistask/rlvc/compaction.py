@@ -29,6 +29,7 @@ import torch
 from sklearn.tree import DecisionTreeClassifier
 
 from vistask.checks import checked
+from vistask.rlvc.presence import PackedPresence
 from vistask.rlvc.solver import state_values
 
 DROP_VALUE_TOLERANCE = 10.0  # in tolerances; see the module's docstring
@@ -129,7 +130,10 @@ def merge_groups(q: torch.Tensor, tolerance: float) -> torch.Tensor:
 
 
 def induced_splits(
-    presence: torch.Tensor, classes: torch.Tensor, features: Sequence[int], seed: int = 0
+    presence: torch.Tensor | PackedPresence,
+    classes: torch.Tensor,
+    features: Sequence[int],
+    seed: int = 0,
 ) -> tuple[list[tuple[int, int]], list[int]]:
     """A decision tree over ``features`` that puts every percept in its class, as class splits.
 

@@ -1,16 +1,16 @@
 """The interaction database that the split searches of RLVC and RLJC read.
 
 Interactions (x_t, a_t, r_{t+1}, x_{t+1}, terminal) are stored as indices into a table of
-unique percepts, each percept as a row of a bool feature-presence matrix. Feature extraction,
-the dominant cost, runs once per percept. The split search reads the database as a sparse
-(interaction, feature) COO list, so that per-class sums over all features are a few
+unique percepts, each percept as a row of a feature-presence matrix held as bits. Feature
+extraction, the dominant cost, runs once per percept. The split search reads the database as
+a sparse (interaction, feature) COO list, so that per-class sums over all features are a few
 scatter-adds (sparse products) instead of dense (interactions x features) products.
 """
 
 from __future__ import annotations
 
 import copy
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field, replace
 
 import gymnasium as gym
@@ -28,6 +28,7 @@ from vistask.features import (
 )
 from vistask.features.compounds import concatenated_ranges
 from vistask.memory import base_pages
+from vistask.rlvc.presence import PackedPresence
 
 # An exploration policy maps a batch of observations (B, H, W, 3) and a generator to (B,)
 # action ids, or (B, m) continuous actions: batches let a policy over visual classes extract
@@ -133,7 +134,6 @@ def _copy(env: gym.Env) -> gym.Env:
 
 
 @checked
-@base_pages()  # each call runs inside the block
 def collect(
     env: gym.Env,
     n: int,
@@ -161,106 +161,125 @@ def collect(
         on_step: called with the number of interactions added after each step of the copies
             (a progress bar's ``update``).
     """
+    return next(collect_chunks(env, n, policy, seed, max_blocked, n_envs, on_step))
+
+
+@checked
+def collect_chunks(
+    env: gym.Env,
+    n: int,
+    policy: ExplorationPolicy | None = None,
+    seed: int = 0,
+    max_blocked: int | None = None,
+    n_envs: int = 1,
+    on_step: Callable[[int], None] | None = None,
+    chunk_percepts: int | None = None,
+) -> Iterator[Transitions]:
+    """``collect``'s ``n`` interactions as a sequence of ``Transitions`` of at most about
+    ``chunk_percepts`` percepts each (None: one), so that a caller that reduces each chunk to
+    features holds the images of one chunk at a time. The episodes are those of one
+    ``collect`` call: an episode going on at the end of a chunk goes on in the next, whose
+    percepts start with the copies' current views. Arguments as in ``collect``.
+
+    Example:
+        >>> for part in collect_chunks(env, 600_000, chunk_percepts=16_384):
+        ...     databases.append(InteractionDatabase.build(part, extractor))
+    """
     continuous = isinstance(env.action_space, gym.spaces.Box)
     check_image_env(env, continuous)
     if n < 1:
         raise ValueError(f"need at least one interaction, got n={n}")
     if n_envs < 1:
         raise ValueError(f"n_envs must be >= 1, got {n_envs}")
+    if chunk_percepts is not None and chunk_percepts < n_envs:
+        raise ValueError(f"chunk_percepts must be >= n_envs ({n_envs}), got {chunk_percepts}")
     rng = np.random.default_rng(seed)
     policy = policy or random_policy(env.action_space)
     envs = vector_copies(env, n_envs)
-    percepts: list[np.ndarray] = []
-    positions: list[np.ndarray] = []
-    obs_i, act, rew, next_i, term = [], [], [], [], []
-
-    def add(obs: np.ndarray, infos: dict, i: int) -> int:
-        percepts.append(obs)
-        if "position" in infos:
-            positions.append(np.asarray(infos["position"][i]))
-        return len(percepts) - 1
-
+    chunk = _Chunk(continuous)
     # Per env copy: the percept index of its view and its blocked moves in a row.
-    views, infos = envs.reset(seed=[seed + i for i in range(n_envs)])
-    current = [add(views[i], infos, i) for i in range(n_envs)]
+    with base_pages():
+        views, infos = envs.reset(seed=[seed + i for i in range(n_envs)])
+    current = [chunk.add(views[i], infos, i) for i in range(n_envs)]
     blocked = np.zeros(n_envs, dtype=int)
-    returns, episode_returns = np.zeros(n_envs), []
-    while len(act) < n:
-        actions = np.asarray(policy(views, rng))
-        obs, rewards, terminated, truncated, infos = envs.step(actions)
-        # A blocked move shows the same view again: store (and later extract) it once.
-        same = (obs == views).reshape(n_envs, -1).all(axis=1)
-        added = min(n_envs, n - len(act))  # the last round may need fewer
-        for i in range(added):
-            following = current[i] if same[i] else add(obs[i], infos, i)
-            obs_i.append(current[i])
-            act.append(actions[i])
-            rew.append(float(rewards[i]))
-            next_i.append(following)
-            term.append(bool(terminated[i]))
-            current[i] = following
-            returns[i] += float(rewards[i])
-        if on_step is not None:
-            on_step(added)
-        blocked = np.where(same, blocked + 1, 0)
-        ended = terminated | truncated | (blocked == max_blocked)
-        episode_returns.extend(returns[:added][ended[:added]])
-        returns[ended] = 0.0
-        views = obs
-        if ended.any() and len(act) < n:
-            views, infos = envs.reset(options={"reset_mask": ended})
-            for i in np.flatnonzero(ended):
-                current[i] = add(views[i], infos, i)
-            blocked[ended] = 0
-    return Transitions(
-        percepts,
-        np.asarray(obs_i),
-        # A (B,) batch of 1-D continuous actions is as valid as (B, 1): keep the space's shape.
-        np.asarray(act, np.float64).reshape(len(act), -1) if continuous else np.asarray(act),
-        np.asarray(rew, dtype=np.float64),
-        np.asarray(next_i),
-        np.asarray(term, dtype=bool),
-        np.stack(positions) if len(positions) == len(percepts) else None,
-        np.asarray(episode_returns, dtype=np.float64),
-    )
+    returns, collected = np.zeros(n_envs), 0
+    while collected < n:
+        with base_pages():  # released at each yield: the caller's setting between chunks
+            actions = np.asarray(policy(views, rng))
+            obs, rewards, terminated, truncated, infos = envs.step(actions)
+            # A blocked move shows the same view again: store (and later extract) it once.
+            same = (obs == views).reshape(n_envs, -1).all(axis=1)
+            added = min(n_envs, n - collected)  # the last round may need fewer
+            for i in range(added):
+                following = current[i] if same[i] else chunk.add(obs[i], infos, i)
+                chunk.link(current[i], actions[i], rewards[i], following, terminated[i])
+                current[i] = following
+                returns[i] += float(rewards[i])
+            collected += added
+            if on_step is not None:
+                on_step(added)
+            blocked = np.where(same, blocked + 1, 0)
+            ended = terminated | truncated | (blocked == max_blocked)
+            chunk.episode_returns.extend(returns[:added][ended[:added]])
+            returns[ended] = 0.0
+            views = obs
+            if ended.any() and collected < n:
+                views, infos = envs.reset(options={"reset_mask": ended})
+                for i in np.flatnonzero(ended):
+                    current[i] = chunk.add(views[i], infos, i)
+                blocked[ended] = 0
+        if chunk_percepts is not None and len(chunk.percepts) >= chunk_percepts and collected < n:
+            done, chunk = chunk, _Chunk(continuous)
+            current = [chunk.carry(done, k) for k in current]
+            yield done.transitions()
+    yield chunk.transitions()
 
 
-@dataclass
-class ColumnRoom:
-    """A (M, capacity) bool buffer whose first ``used`` columns hold a presence matrix, with
-    spare columns after them.
+class _Chunk:
+    """The percepts and interactions of one chunk of ``collect_chunks``, as they come."""
 
-    A compound search adds a few presence columns at a time, dozens of times in a run, and a
-    copy of the whole presence for each took 0.17-0.19 s on the mountain car's (44,000,
-    8,282), about 50 times a run.
-    """
+    def __init__(self, continuous: bool) -> None:
+        self.continuous = continuous
+        self.percepts: list[np.ndarray] = []
+        self.positions: list[np.ndarray] = []
+        self.obs, self.actions, self.rewards, self.next_obs, self.terminal = [], [], [], [], []
+        self.episode_returns: list[float] = []
 
-    buffer: torch.Tensor
-    used: int
+    def add(self, view: np.ndarray, infos: dict, i: int) -> int:
+        """Add copy ``i``'s view (``infos``: the copies' infos); its percept index."""
+        self.percepts.append(view)
+        if "position" in infos:
+            self.positions.append(np.asarray(infos["position"][i]))
+        return len(self.percepts) - 1
 
-    SPARE = 128
+    def carry(self, other: _Chunk, k: int) -> int:
+        """Add percept ``k`` of ``other`` (a copy's view when ``other`` ended); its index."""
+        self.percepts.append(other.percepts[k])
+        if len(other.positions) == len(other.percepts):
+            self.positions.append(other.positions[k])
+        return len(self.percepts) - 1
 
-    @classmethod
-    def append(
-        cls, presence: torch.Tensor, columns: torch.Tensor, room: ColumnRoom | None
-    ) -> tuple[torch.Tensor, ColumnRoom]:
-        """``presence`` (M, F) with ``columns`` (M, C) after it (a view of the room's buffer),
-        and the room. The columns go into ``room``'s spare columns when ``presence`` is its
-        filled part; otherwise (no room yet, a full one, or one that a database sharing it
-        has filled further) into a new room."""
-        m, f = presence.shape
-        c = columns.shape[1]
-        if (
-            room is None
-            or room.used != f
-            or room.buffer.data_ptr() != presence.data_ptr()
-            or f + c > room.buffer.shape[1]
-        ):
-            room = cls(torch.empty(m, f + c + cls.SPARE, dtype=torch.bool), f)
-            room.buffer[:, :f] = presence
-        room.buffer[:, f : f + c] = columns
-        room.used = f + c
-        return room.buffer[:, : f + c], room
+    def link(self, obs: int, action, reward, next_obs: int, terminal) -> None:
+        self.obs.append(obs)
+        self.actions.append(action)
+        self.rewards.append(float(reward))
+        self.next_obs.append(next_obs)
+        self.terminal.append(bool(terminal))
+
+    def transitions(self) -> Transitions:
+        actions = np.asarray(self.actions, np.float64 if self.continuous else None)
+        return Transitions(
+            self.percepts,
+            np.asarray(self.obs, dtype=np.int64),
+            # A (B,) batch of 1-D continuous actions is as valid as (B, 1): keep the space's
+            # shape.
+            actions.reshape(len(actions), -1) if self.continuous else actions,
+            np.asarray(self.rewards, dtype=np.float64),
+            np.asarray(self.next_obs, dtype=np.int64),
+            np.asarray(self.terminal, dtype=bool),
+            np.stack(self.positions) if len(self.positions) == len(self.percepts) else None,
+            np.asarray(self.episode_returns, dtype=np.float64),
+        )
 
 
 @checked
@@ -269,7 +288,8 @@ class InteractionDatabase:
     """Interactions with feature presence, laid out for the split search.
 
     Attributes:
-        presence: (M, F) bool, feature presence of each unique percept.
+        presence: (M, F) feature presence of each unique percept, held as bits
+            (``PackedPresence``; a bool tensor given here is packed).
         obs, next_obs: (N,) long percept indices of x_t and x_{t+1}.
         actions: (N,) long action ids, or (N, m) float64 continuous actions.
         rewards: (N,) float64. terminal: (N,) bool.
@@ -279,7 +299,7 @@ class InteractionDatabase:
             compound search; None when only presence is known.
     """
 
-    presence: torch.Tensor
+    presence: PackedPresence | torch.Tensor
     obs: torch.Tensor
     actions: torch.Tensor
     rewards: torch.Tensor
@@ -288,9 +308,15 @@ class InteractionDatabase:
     positions: np.ndarray | None = None
     occurrences: Occurrences | None = None
     _coo: tuple[torch.Tensor, torch.Tensor] | None = field(default=None, repr=False)
-    _room: ColumnRoom | None = field(default=None, repr=False)
 
     def __post_init__(self) -> None:
+        if isinstance(self.presence, torch.Tensor):
+            if self.presence.ndim != 2 or self.presence.dtype != torch.bool:
+                raise ValueError(
+                    f"presence must be (M, F) bool, got {tuple(self.presence.shape)} "
+                    f"{self.presence.dtype}"
+                )
+            self.presence = PackedPresence.from_dense(self.presence)
         n = len(self.actions)
         if n == 0:
             raise ValueError("the interaction database is empty: collect some interactions first")
@@ -333,7 +359,12 @@ class InteractionDatabase:
         else:
             occurrences = extractor.occurrences_of(detected, compounds)
         return cls(
-            presence=occurrences.presence(extractor.n_features + len(compounds)),
+            presence=PackedPresence.from_pairs(
+                occurrences.image,
+                occurrences.feature,
+                occurrences.n_images,
+                extractor.n_features + len(compounds),
+            ),
             obs=torch.as_tensor(transitions.obs, dtype=torch.long),
             actions=torch.as_tensor(
                 transitions.actions,
@@ -347,32 +378,33 @@ class InteractionDatabase:
         )
 
     @classmethod
-    def concat(cls, first: InteractionDatabase, second: InteractionDatabase) -> InteractionDatabase:
-        """Both databases' interactions in one (same vocabulary; percepts are not merged)."""
-        if first.n_features != second.n_features:
+    def concat(cls, *databases: InteractionDatabase) -> InteractionDatabase:
+        """The databases' interactions in one, in order (same vocabulary; percepts are not
+        merged)."""
+        widths = sorted({db.n_features for db in databases})
+        if len(widths) != 1:
             raise ValueError(
-                f"cannot join databases over {first.n_features} and {second.n_features} features"
+                f"cannot join databases over {' and '.join(map(str, widths))} features"
             )
-        m = len(first.presence)
-        has_positions = first.positions is not None and second.positions is not None
-        has_occurrences = first.occurrences is not None and second.occurrences is not None
-        if (first.occurrences is None) != (second.occurrences is None):
+        if len({db.occurrences is None for db in databases}) != 1:
             raise ValueError(
                 "cannot join a database that keeps feature occurrences with one that does not"
             )
+        # Percept indices of each database after the percepts of those before it.
+        offsets = np.cumsum([0] + [len(db.presence) for db in databases[:-1]]).tolist()
+        positions = [db.positions for db in databases]
+        occurrences = [db.occurrences for db in databases]
         return cls(
-            presence=torch.cat([first.presence, second.presence]),
-            obs=torch.cat([first.obs, second.obs + m]),
-            actions=torch.cat([first.actions, second.actions]),
-            rewards=torch.cat([first.rewards, second.rewards]),
-            next_obs=torch.cat([first.next_obs, second.next_obs + m]),
-            terminal=torch.cat([first.terminal, second.terminal]),
-            positions=np.concatenate([first.positions, second.positions])
-            if has_positions
-            else None,
-            occurrences=Occurrences.concat([first.occurrences, second.occurrences])
-            if has_occurrences
-            else None,
+            presence=PackedPresence.concat([db.presence for db in databases]),
+            obs=torch.cat([db.obs + m for db, m in zip(databases, offsets, strict=True)]),
+            actions=torch.cat([db.actions for db in databases]),
+            rewards=torch.cat([db.rewards for db in databases]),
+            next_obs=torch.cat([db.next_obs + m for db, m in zip(databases, offsets, strict=True)]),
+            terminal=torch.cat([db.terminal for db in databases]),
+            positions=None if any(p is None for p in positions) else np.concatenate(positions),
+            occurrences=None
+            if any(o is None for o in occurrences)
+            else Occurrences.concat(occurrences),
         )
 
     def take(self, index: torch.Tensor) -> InteractionDatabase:
@@ -404,11 +436,11 @@ class InteractionDatabase:
     @classmethod
     def from_state_dict(cls, state: dict) -> InteractionDatabase:
         """The database of ``state_dict()``."""
-        presence = torch.zeros(state["presence_shape"], dtype=torch.bool)
-        presence[state["present"][0].long(), state["present"][1].long()] = True
         occ = state["occurrences"]
         return cls(
-            presence=presence,
+            presence=PackedPresence.from_pairs(
+                state["present"][0].numpy(), state["present"][1].numpy(), *state["presence_shape"]
+            ),
             **{k: state[k] for k in ("obs", "actions", "rewards", "next_obs", "terminal")},
             positions=None if state["positions"] is None else state["positions"].numpy(),
             occurrences=None
@@ -432,7 +464,7 @@ class InteractionDatabase:
         new = self.occurrences.take(self.occurrences.feature >= first)
         new.feature = new.feature - first
         added = new.presence(len(compounds))
-        self.presence, self._room = ColumnRoom.append(self.presence, added, self._room)
+        self.presence = self.presence.with_columns(added)
         if self._coo is not None:
             # The compounds' pairs go after the others, not in row order: the split search
             # sums each feature's pairs in their order, and each feature's pairs keep theirs.
@@ -452,7 +484,7 @@ class InteractionDatabase:
 
 
 def interaction_pairs(
-    presence: torch.Tensor, obs: torch.Tensor
+    presence: PackedPresence | torch.Tensor, obs: torch.Tensor
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """The (interaction, feature) pairs of the percepts ``obs`` (N,) whose features are
     ``presence`` (M, F): rows (nnz,) and features (nnz,), by interaction then feature."""

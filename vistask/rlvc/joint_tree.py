@@ -18,6 +18,7 @@ import numpy as np
 import torch
 
 from vistask.checks import checked
+from vistask.rlvc.presence import PackedPresence
 
 
 class _Tables(NamedTuple):
@@ -166,7 +167,7 @@ class JointTree:
             )
         return self._tables
 
-    def _check(self, presence: torch.Tensor) -> np.ndarray:
+    def _check(self, presence: torch.Tensor | PackedPresence) -> np.ndarray:
         if presence.ndim != 2 or presence.shape[1] != self.n_features:
             raise ValueError(
                 f"presence must be (N, {self.n_features}), got {tuple(presence.shape)}"
@@ -175,7 +176,7 @@ class JointTree:
 
     def classify(
         self,
-        presence: torch.Tensor,
+        presence: torch.Tensor | PackedPresence,
         actions: torch.Tensor | np.ndarray,
         percepts: torch.Tensor | np.ndarray | None = None,
     ) -> torch.Tensor:
@@ -205,7 +206,9 @@ class JointTree:
             node = child[node, np.where(d >= 0, above, visual) * 1]
         return torch.as_tensor(t.leaf_class[node])
 
-    def compatible(self, presence: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    def compatible(
+        self, presence: torch.Tensor | PackedPresence
+    ) -> tuple[torch.Tensor, torch.Tensor]:
         """The joint classes compatible with each percept, as pairs sorted by row.
 
         Args:
@@ -235,7 +238,9 @@ class JointTree:
         order = np.lexsort((classes, rows))
         return torch.as_tensor(rows[order]), torch.as_tensor(classes[order])
 
-    def cells(self, presence: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    def cells(
+        self, presence: torch.Tensor | PackedPresence
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """Perceptual cells: the percepts of a batch grouped by their compatible joint classes.
 
         Args:

@@ -40,6 +40,7 @@ from vistask.rlvc.compaction import (
 )
 from vistask.rlvc.compound_search import find_compound_splits
 from vistask.rlvc.database import InteractionDatabase
+from vistask.rlvc.presence import PackedPresence
 from vistask.rlvc.seen import SeenPercepts, classify
 from vistask.rlvc.solver import estimate_mdp, state_values, td_errors, value_iteration
 from vistask.rlvc.split import Split, find_splits
@@ -542,12 +543,12 @@ class RLVC:
         """(S,) V = max_a Q of every class."""
         return state_values(self.q)
 
-    def classify(self, presence: torch.Tensor) -> torch.Tensor:
+    def classify(self, presence: torch.Tensor | PackedPresence) -> torch.Tensor:
         """(N, F) bool presence -> (N,) classes (by the structure, or after ``remember`` by
         the nearest percepts learned on)."""
         return classify(self.structure, self.seen, presence)
 
-    def greedy(self, presence: torch.Tensor) -> torch.Tensor:
+    def greedy(self, presence: torch.Tensor | PackedPresence) -> torch.Tensor:
         """(N, F) bool presence -> (N,) greedy actions: of the classes' Q, or after ``fuse``
         of the fused structures' mean Q (``Committee``)."""
         if self.committee is not None:

@@ -23,6 +23,7 @@ from vistask.checks import checked
 from vistask.rlvc.database import InteractionDatabase
 from vistask.rlvc.joint_tree import JointTree, cells_of
 from vistask.rlvc.learner import StageRecord, Timing, single_thread
+from vistask.rlvc.presence import PackedPresence
 from vistask.rlvc.split import (
     Split,
     ThresholdSplit,
@@ -317,7 +318,9 @@ class RLJC:
 
     # -- acting -----------------------------------------------------------------------------
     def best_classes(
-        self, presence: torch.Tensor, pairs: tuple[torch.Tensor, torch.Tensor] | None = None
+        self,
+        presence: torch.Tensor | PackedPresence,
+        pairs: tuple[torch.Tensor, torch.Tensor] | None = None,
     ) -> torch.Tensor:
         """(N, F) presence -> (N,) the compatible joint class of highest Q of each percept
         (``pairs``: the percepts' ``structure.compatible`` if already known)."""
@@ -330,13 +333,13 @@ class RLJC:
         tops = torch.nonzero(is_top).flatten()
         return classes[tops[first_in_group(rows[tops], len(presence))]]
 
-    def greedy(self, presence: torch.Tensor) -> np.ndarray:
+    def greedy(self, presence: torch.Tensor | PackedPresence) -> np.ndarray:
         """(N, F) bool presence -> (N, m) greedy actions: the centres of the best boxes."""
         best = self.best_classes(presence).numpy()
         return (self.structure.box_low[best] + self.structure.box_high[best]) / 2
 
     def explore(
-        self, presence: torch.Tensor, epsilon: float, rng: np.random.Generator
+        self, presence: torch.Tensor | PackedPresence, epsilon: float, rng: np.random.Generator
     ) -> np.ndarray:
         """(N, m) actions drawn uniformly inside a box chosen epsilon-greedily among the
         classes compatible with each percept (the best one, or with probability ``epsilon``

@@ -20,6 +20,7 @@ import torch
 
 from vistask.checks import checked
 from vistask.rlvc.bdd import ClassBDD
+from vistask.rlvc.presence import PackedPresence
 from vistask.rlvc.tree import ClassTree
 
 MAX_DISTANCES = 2**24  # distances held at once (64 MiB of float32)
@@ -47,7 +48,9 @@ class SeenPercepts:
     counts: torch.Tensor
 
     @classmethod
-    def of(cls, structure: ClassTree | ClassBDD, presence: torch.Tensor) -> SeenPercepts:
+    def of(
+        cls, structure: ClassTree | ClassBDD, presence: torch.Tensor | PackedPresence
+    ) -> SeenPercepts:
         """The seen patterns of ``presence`` (M, F) bool, classified by ``structure``."""
         features = torch.as_tensor(structure.selected_features, dtype=torch.long)
         patterns, inverse = torch.unique(presence[:, features], dim=0, return_inverse=True)
@@ -60,7 +63,7 @@ class SeenPercepts:
         patterns = sp.csr_matrix(patterns.numpy(), dtype=np.float32)
         return cls(features, patterns, classes[first], torch.bincount(inverse))
 
-    def nearest(self, presence: torch.Tensor) -> torch.Tensor:
+    def nearest(self, presence: torch.Tensor | PackedPresence) -> torch.Tensor:
         """(N,) the class that most of the nearest seen percepts of each percept are in
         (``presence`` (N, F) bool; ties: the lowest class id)."""
         ones = np.asarray(self.patterns.sum(axis=1)).ravel()  # (U,)
@@ -98,7 +101,9 @@ class SeenPercepts:
 
 
 def classify(
-    structure: ClassTree | ClassBDD, seen: SeenPercepts | None, presence: torch.Tensor
+    structure: ClassTree | ClassBDD,
+    seen: SeenPercepts | None,
+    presence: torch.Tensor | PackedPresence,
 ) -> torch.Tensor:
     """(N,) classes of ``presence`` (N, F) bool: the structure's, or with ``seen`` the
     nearest seen percepts' (``SeenPercepts.nearest``)."""

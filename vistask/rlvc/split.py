@@ -106,6 +106,62 @@ def welch_splits(
     return reduction, p, maybe & (p < alpha)
 
 
+# (group, feature) cells whose counts a split search holds at once: its tables take about
+# 30 bytes a cell, so this bounds them near 500 MB however many classes the data carry.
+TABLE_CELLS = 1 << 24
+
+
+def candidate_moments(
+    group_row: torch.Tensor,
+    features: torch.Tensor,
+    deltas: torch.Tensor,
+    n_g: torch.Tensor,
+    n_features: int,
+    min_count: int,
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    """The (group, feature) cells with ``min_count`` interactions on both sides of a split,
+    and their count, sum and sum of squares of TD errors where the feature is present.
+
+    Args:
+        group_row: (nnz,) long row of each (interaction, feature) pair's group, in 0..G
+            (G: a group that cannot split, never counted).
+        features: (nnz,) long feature of each pair.
+        deltas: (nnz,) float64 TD error of each pair's interaction.
+        n_g: (G,) float64 interactions of each group.
+        n_features: F.
+        min_count: interactions needed on each side.
+
+    Returns:
+        cells (K,) long, ``group * F + feature``, ascending; counts, sums and sums of squares
+        (K,) float64.
+    """
+    rows_per_block = max(1, TABLE_CELLS // n_features)
+    n_blocks = -(-len(n_g) // rows_per_block)
+    if n_blocks == 1:
+        blocks = [slice(None)]
+    else:
+        # The pairs of each block of groups, in their order (a stable counting sort: numpy
+        # sorts 16-bit keys by radix).
+        block = (group_row // rows_per_block).clamp_max(n_blocks).numpy().astype(np.uint16)
+        order = torch.from_numpy(np.argsort(block, kind="stable"))
+        blocks = torch.split(order, np.bincount(block, minlength=n_blocks + 1).tolist())
+    found = []
+    for b in range(n_blocks):
+        pairs, first = blocks[b], b * rows_per_block
+        n_rows = min(rows_per_block, len(n_g) - first)
+        size = n_rows * n_features
+        # Pairs of the groups that cannot split land in one row past the block's, cut off.
+        key = (group_row[pairs] - first) * n_features + features[pairs]
+        d = deltas[pairs]
+        n_f = torch.bincount(key, minlength=size + n_features)[:size].view(n_rows, n_features)
+        room = (n_g[first : first + n_rows].long() - min_count)[:, None]
+        cell = torch.nonzero(((n_f >= min_count) & (n_f <= room)).flatten()).flatten()
+        s1 = torch.zeros(size + n_features, dtype=torch.float64).index_add_(0, key, d)[cell]
+        s2 = torch.zeros(size + n_features, dtype=torch.float64).index_add_(0, key, d * d)[cell]
+        found.append((cell + first * n_features, n_f.flatten()[cell].double(), s1, s2))
+    return tuple(torch.cat(parts) for parts in zip(*found, strict=True))
+
+
 @checked
 def find_splits(
     rows: torch.Tensor,
@@ -153,27 +209,16 @@ def find_splits(
     active = torch.nonzero(n_g >= 2 * min_count).flatten()
     if len(active) == 0:
         return []
-    # The other groups share one row past the table's end, cut off below: selecting the
-    # pairs of the active groups instead took twice the time of the whole table.
+    # The other groups share one row past the active ones, never counted.
     compact = torch.full((groups,), len(active), dtype=torch.long)
     compact[active] = torch.arange(len(active))
-    key = (compact[group] * n_features)[rows] + features
-    d = deltas[rows]
-    size = len(active) * n_features
-    table = size + n_features
     n_g, s1_g, s2_g = n_g[active], s1_g[active], s2_g[active]
-    # Candidates: (group, feature) pairs with min_count on both sides, a small share of the
-    # group x feature table once classes are small; the statistics below are per candidate.
-    n_f = torch.bincount(key, minlength=table)[:size]
-    room = (n_g.long() - min_count)[:, None]
-    both_sides = (n_f.view(-1, n_features) >= min_count) & (n_f.view(-1, n_features) <= room)
-    candidate = torch.nonzero(both_sides.flatten()).flatten()
+    candidate, n_f, s1_f, s2_f = candidate_moments(
+        compact[group][rows], features, deltas[rows], n_g, n_features, min_count
+    )
     if len(candidate) == 0:
         return []
     cg, cf = candidate // n_features, candidate % n_features  # group row, feature
-    s1_f = torch.zeros(table, dtype=torch.float64).index_add_(0, key, d)[candidate]
-    s2_f = torch.zeros(table, dtype=torch.float64).index_add_(0, key, d * d)[candidate]
-    n_f = n_f[candidate].double()
     n_gc, s1_gc, s2_gc = n_g[cg], s1_g[cg], s2_g[cg]
 
     reduction, p, significant = welch_splits(

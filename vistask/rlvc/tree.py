@@ -11,6 +11,7 @@ import numpy as np
 import torch
 
 from vistask.checks import checked
+from vistask.rlvc.presence import PackedPresence
 
 
 @checked
@@ -82,7 +83,7 @@ class ClassTree:
         self._tables.clear()
         return new_class
 
-    def classify(self, presence: torch.Tensor) -> torch.Tensor:
+    def classify(self, presence: torch.Tensor | PackedPresence) -> torch.Tensor:
         """(N, F) bool presence -> (N,) long class ids, all rows at once (one step per level)."""
         if presence.ndim != 2 or presence.shape[1] != self.n_features:
             raise ValueError(

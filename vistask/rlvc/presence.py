@@ -1,0 +1,183 @@
+"""Feature presence of a database's percepts, held as bits: eight features a byte.
+
+A database's (M, F) presence is read a few columns at a time (the features a class structure
+tests) or one entry per percept (the feature that a tree node tests), never whole. Held as a
+bool tensor it took a byte per (percept, feature): 643 MB for the maze's 78,000 percepts of
+8,192 words, growing with every interaction. ``PackedPresence`` holds the same matrix in an
+eighth of that and answers the same indexing with bool tensors.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+import torch
+
+from vistask.checks import checked
+
+ROWS_PER_CHUNK = 4096  # percepts unpacked at a time where every entry is read
+
+
+def _index(key) -> np.ndarray | slice | int:
+    """A row or column key as numpy indexing takes it (tensors and bool masks included)."""
+    if isinstance(key, slice | int | np.integer):
+        return key
+    key = np.asarray(key.cpu() if isinstance(key, torch.Tensor) else key)
+    if key.ndim == 0:
+        return int(key)
+    return np.flatnonzero(key) if key.dtype == bool else key.astype(np.int64, copy=False)
+
+
+class PackedBits:
+    """The numpy side of a ``PackedPresence`` (what ``numpy()`` gives, as a tensor's does):
+    ``bits[rows, columns]`` is a numpy bool array."""
+
+    def __init__(self, packed: np.ndarray, n_features: int) -> None:
+        self.packed, self.n_features = packed, n_features
+
+    def __len__(self) -> int:
+        return len(self.packed)
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """(M, F)."""
+        return (len(self.packed), self.n_features)
+
+    def __getitem__(self, key) -> np.ndarray:
+        rows, columns = (*(key if isinstance(key, tuple) else (key,)), slice(None))[:2]
+        rows, columns = _index(rows), _index(columns)
+        block = isinstance(rows, slice) or isinstance(columns, slice)
+        if isinstance(columns, slice):
+            columns = np.arange(self.n_features)[columns]
+        byte, shift = columns >> 3, np.asarray(columns & 7, dtype=np.uint8)
+        # A slice of rows or columns: every listed row with every listed column; else rows and
+        # columns paired entry by entry (broadcast), as numpy pairs index arrays.
+        out = self.packed[rows][..., byte] if block else self.packed[rows, byte]
+        if np.ndim(out) == 0:
+            return np.asarray((out >> shift) & 1 == 1)
+        if np.may_share_memory(out, self.packed):  # one column of a slice of rows: a view
+            out = out.copy()
+        out = np.ascontiguousarray(out)  # numpy may lay a read of columns out column-major
+        # One copy of the bytes read, turned into their bits in place: reads of thousands of
+        # columns of every percept are hundreds of MB.
+        np.right_shift(out, shift, out=out)
+        return np.bitwise_and(out, 1, out=out).view(bool)
+
+
+@checked
+class PackedPresence:
+    """(M, F) bool feature presence in (M, ceil(F / 8)) uint8, bit f % 8 of byte f // 8.
+
+    It answers a bool tensor's indexing with bool tensors (``presence[:, columns]``,
+    ``presence[rows, feature]``, ``presence[rows, features]`` entry by entry), and ``numpy()``
+    with ``PackedBits`` for numpy's. Held on the CPU.
+
+    Example:
+        >>> presence = PackedPresence.from_pairs(image, feature, n_images=3, n_features=100)
+        >>> presence[:, [4, 7]]          # (3, 2) bool tensor
+        >>> presence.dense()             # (3, 100) bool tensor
+
+    Args:
+        packed: (M, ceil(F / 8)) uint8 bits.
+        n_features: F.
+    """
+
+    ndim = 2
+    dtype = torch.bool
+    device = torch.device("cpu")
+
+    def __init__(self, packed: np.ndarray, n_features: int) -> None:
+        if packed.dtype != np.uint8 or packed.ndim != 2 or packed.shape[1] != -(-n_features // 8):
+            raise ValueError(
+                f"packed must be (M, {-(-n_features // 8)}) uint8 for {n_features} features, "
+                f"got {packed.shape} {packed.dtype}"
+            )
+        self._bits = PackedBits(np.ascontiguousarray(packed), n_features)
+
+    @classmethod
+    def from_dense(cls, presence: torch.Tensor) -> PackedPresence:
+        """The bits of a (M, F) bool tensor."""
+        bits = presence.cpu().numpy().astype(bool, copy=False)
+        return cls(np.packbits(bits, axis=1, bitorder="little"), presence.shape[1])
+
+    @classmethod
+    def from_pairs(
+        cls, image: np.ndarray, feature: np.ndarray, n_images: int, n_features: int
+    ) -> PackedPresence:
+        """Feature ``feature[k]`` present in image ``image[k]`` (repeats allowed)."""
+        image, feature = np.asarray(image, np.int64), np.asarray(feature, np.int64)
+        if len(feature) and not (feature.min() >= 0 and feature.max() < n_features):
+            raise ValueError(f"feature ids must lie in 0..{n_features - 1}")
+        packed = np.zeros((n_images, -(-n_features // 8)), np.uint8)
+        np.bitwise_or.at(packed, (image, feature >> 3), (1 << (feature & 7)).astype(np.uint8))
+        return cls(packed, n_features)
+
+    @property
+    def shape(self) -> torch.Size:
+        """(M, F)."""
+        return torch.Size(self._bits.shape)
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes the bits take."""
+        return self._bits.packed.nbytes
+
+    def __len__(self) -> int:
+        return len(self._bits)
+
+    def __getitem__(self, key) -> torch.Tensor:
+        return torch.from_numpy(self._bits[key])
+
+    def numpy(self) -> PackedBits:
+        """The bits for numpy's indexing (``PackedBits``)."""
+        return self._bits
+
+    def cpu(self) -> PackedPresence:
+        """Itself: the bits are on the CPU."""
+        return self
+
+    def dense(self) -> torch.Tensor:
+        """The (M, F) bool tensor."""
+        return self[:, :]
+
+    def nonzero(self, as_tuple: bool = True) -> tuple[torch.Tensor, torch.Tensor]:
+        """Rows (nnz,) and features (nnz,) long of the present entries, by row then feature."""
+        if not as_tuple:
+            raise ValueError("PackedPresence.nonzero gives rows and features: as_tuple=True")
+        rows, features = [], []
+        packed, f = self._bits.packed, self._bits.n_features
+        for start in range(0, len(packed), ROWS_PER_CHUNK):
+            chunk = np.unpackbits(
+                packed[start : start + ROWS_PER_CHUNK], axis=1, count=f, bitorder="little"
+            )
+            r, c = np.nonzero(chunk)
+            rows.append(r + start)
+            features.append(c)
+        if not rows:
+            return torch.zeros(0, dtype=torch.long), torch.zeros(0, dtype=torch.long)
+        return torch.from_numpy(np.concatenate(rows)), torch.from_numpy(np.concatenate(features))
+
+    def with_columns(self, columns: torch.Tensor) -> PackedPresence:
+        """This presence with (M, C) bool ``columns`` after its F features."""
+        m, f = self.shape
+        if columns.shape[0] != m:
+            raise ValueError(f"columns must have {m} rows, got {tuple(columns.shape)}")
+        rows, added = np.nonzero(columns.cpu().numpy())
+        width = -(-(f + columns.shape[1]) // 8)
+        packed = np.zeros((m, width), np.uint8)
+        packed[:, : self._bits.packed.shape[1]] = self._bits.packed
+        added = added + f
+        np.bitwise_or.at(packed, (rows, added >> 3), (1 << (added & 7)).astype(np.uint8))
+        return PackedPresence(packed, f + columns.shape[1])
+
+    @staticmethod
+    def concat(parts: Sequence[PackedPresence]) -> PackedPresence:
+        """The rows of ``parts`` (same features) one after another."""
+        widths = {p.shape[1] for p in parts}
+        if len(widths) != 1:
+            raise ValueError(f"cannot join presence of {sorted(widths)} features")
+        return PackedPresence(np.concatenate([p._bits.packed for p in parts]), widths.pop())
+
+
+__all__ = ["PackedBits", "PackedPresence"]
