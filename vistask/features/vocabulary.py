@@ -31,7 +31,7 @@ SMALL_BATCH = 200  # descriptors: below, one product with every prototype beats 
 VOCABULARY_GROUPS = 64  # coarse groups of a vocabulary tree, unless told otherwise
 CACHE_SIZE = 100_000  # distinct images whose words an extractor remembers, by default
 # Descriptors matched at a time: a grouped search copies each descriptor once per probed group,
-# so 393,000 descriptors at once took 800 MB; this many take about 70 MB.
+# so a first database's descriptors matched at once took hundreds of MB.
 ASSIGN_CHUNK = 1 << 15
 
 

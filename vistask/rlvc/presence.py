@@ -1,10 +1,10 @@
 """Feature presence of a database's percepts, held as bits: eight features a byte.
 
 A database's (M, F) presence is read a few columns at a time (the features a class structure
-tests) or one entry per percept (the feature that a tree node tests), never whole. Held as a
-bool tensor it took a byte per (percept, feature): 643 MB for the maze's 78,000 percepts of
-8,192 words, growing with every interaction. ``PackedPresence`` holds the same matrix in an
-eighth of that and answers the same indexing with bool tensors.
+tests) or one entry per percept (the feature that a tree node tests), never whole. A bool
+tensor takes a byte per (percept, feature), a kilobyte per percept of 8,192 words;
+``PackedPresence`` holds the same matrix in an eighth of that and answers the same indexing
+with bool tensors.
 """
 
 from __future__ import annotations
