@@ -292,10 +292,12 @@ class VisualAgent(SB3Model):
             + INTERACTION_BYTES
         )
         image = int(np.prod(self.observation_space.shape))
-        chunk = PERCEPTS_PER_CHUNK * (image + keypoints * DESCRIPTOR_BYTES)
+        chunk = min(interactions, PERCEPTS_PER_CHUNK) * (image + keypoints * DESCRIPTOR_BYTES)
         cache = min(interactions, CACHE_SIZE) * (keypoints * 16 + CACHE_ENTRY_BYTES)
+        # The split search's (class, action) groups that can split hold 2 min_count each.
+        cells = min(TABLE_CELLS, interactions // (2 * self.min_count) * self.n_words)
         # A database is held twice while it joins the earlier ones.
-        need = 2 * interactions * per_interaction + chunk + cache + TABLE_CELLS * 30
+        need = 2 * interactions * per_interaction + chunk + cache + cells * 30
         return need / 2**20
 
     def _check_memory(self, total_timesteps: int) -> None:
