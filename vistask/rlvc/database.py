@@ -260,6 +260,7 @@ class _Chunk:
         return len(self.percepts) - 1
 
     def link(self, obs: int, action, reward, next_obs: int, terminal) -> None:
+        """Add the interaction from percept ``obs`` to percept ``next_obs``."""
         self.obs.append(obs)
         self.actions.append(action)
         self.rewards.append(float(reward))
@@ -267,6 +268,7 @@ class _Chunk:
         self.terminal.append(bool(terminal))
 
     def transitions(self) -> Transitions:
+        """The chunk as ``Transitions``."""
         actions = np.asarray(self.actions, np.float64 if self.continuous else None)
         return Transitions(
             self.percepts,
