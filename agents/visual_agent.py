@@ -357,10 +357,8 @@ class VisualAgent(SB3Model):
             self.num_timesteps += len(transitions)
             progress.phase("collecting")
         self._log_returns(np.concatenate(returns), progress)
-        latest = InteractionDatabase.concat(*parts)
-        self.database = (
-            latest if self.database is None else InteractionDatabase.concat(self.database, latest)
-        )
+        earlier = [] if self.database is None else [self.database]
+        self.database = InteractionDatabase.concat(*earlier, *parts)  # one copy of each part
 
     def _fit_vocabulary(self, transitions: Transitions, progress: LearnProgress) -> list:
         """SIFT on the first chunk's percepts, the vocabulary fitted on their descriptors and

@@ -142,7 +142,8 @@ def _assign(
     """The word of each descriptor: its nearest prototype (none farther than ``max_distance``).
     ``nearest(x, k)`` gives the k nearest prototypes and their squared distances.
 
-    Returns (descriptor index (P,), word (P,)) pairs, ordered by descriptor.
+    Returns (descriptor index (P,), word (P,)) pairs, ordered by descriptor; x holds at least
+    one descriptor.
     """
     rows, words = [], []
     for start in range(0, len(x), ASSIGN_CHUNK):
@@ -153,8 +154,6 @@ def _assign(
         row, column = keep.nonzero(as_tuple=True)
         rows.append(row + start)
         words.append(index[row, column])
-    if not rows:
-        return torch.zeros(0, dtype=torch.long), torch.zeros(0, dtype=torch.long)
     return torch.cat(rows), torch.cat(words)
 
 
