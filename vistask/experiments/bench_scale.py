@@ -54,14 +54,16 @@ def predict_ms_per_percept(agent: RLVCAgent, env: gym.Env, seed: int) -> float:
     episodes), keypoints and words included (the extractor's cache emptied before each)."""
     views = collect(env, PREDICT_BATCH * PREDICT_BATCHES, seed=10**6 + seed).percepts
     extractor, seconds = agent.extractor, 0.0
-    for start in range(0, len(views) - PREDICT_BATCH + 1, PREDICT_BATCH):
+    # A blocked move adds no percept: the batches are those the views fill.
+    starts = range(0, len(views) - PREDICT_BATCH + 1, PREDICT_BATCH)
+    for start in starts:
         agent.extractor = copy.copy(extractor)  # a copy starts with an empty cache
         batch = np.stack(views[start : start + PREDICT_BATCH])
         t0 = time.perf_counter()
         agent.predict(batch)
         seconds += time.perf_counter() - t0
     agent.extractor = extractor
-    return 1e3 * seconds / (PREDICT_BATCH * PREDICT_BATCHES)
+    return 1e3 * seconds / (PREDICT_BATCH * len(starts))
 
 
 def scale_run(env_id: str, budget: int, seed: int = 0) -> dict:
