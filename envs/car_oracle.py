@@ -28,7 +28,7 @@ from vistask.envs.mountain_car import (
     sample_states,
 )
 
-DEFAULT_MAX_STEPS = 100  # the time limit of vistask/VisualMountainCar-v0
+EVAL_STEPS = 100  # a scored episode's steps: gamma^100 = 0.006
 
 
 @checked
@@ -178,7 +178,7 @@ def rollout(
     act: Callable[[np.ndarray, np.ndarray], np.ndarray],
     starts: np.ndarray,
     gamma: float = GAMMA,
-    max_steps: int = DEFAULT_MAX_STEPS,
+    max_steps: int = EVAL_STEPS,
     render: Callable[[np.ndarray], np.ndarray] | None = None,
 ) -> EvaluationResult:
     """Run all episodes from ``starts`` (n, 2) in lockstep until each ends (terminal or
@@ -216,7 +216,7 @@ def start_states(
     oracle: CarOracle | None = None,
     n: int = 100,
     seed: int = 12345,
-    max_steps: int = DEFAULT_MAX_STEPS,
+    max_steps: int = EVAL_STEPS,
 ) -> np.ndarray:
     """The fixed evaluation start set: (n, 2) states drawn uniformly in [-1, 1) x [-3, 3)
     with ``seed``, keeping only those from which the oracle's discounted return is > 0 (the
@@ -247,7 +247,7 @@ def evaluate_car_policy(
     env: VisualMountainCarEnv,
     policy: Policy,
     starts: np.ndarray,
-    max_steps: int | None = None,
+    max_steps: int = EVAL_STEPS,
 ) -> EvaluationResult:
     """Run ``policy`` once from each start, all episodes in lockstep on the true dynamics
     (``hill_step``, as the env and its vector env step), and return the discounted returns.
@@ -265,14 +265,12 @@ def evaluate_car_policy(
         policy: batched ``policy(percepts, states) -> actions`` (see ``Policy``); a visual
             agent must ignore the states.
         starts: (n, 2) start states (``start_states``).
-        max_steps: episode cut-off (default: the env's time limit, else 100).
+        max_steps: episode cut-off (default ``EVAL_STEPS`` = 100, whatever the env's time
+            limit for learning is).
     """
     car = env.unwrapped
     if not isinstance(car, VisualMountainCarEnv):
         raise TypeError(
             f"evaluate_car_policy needs a VisualMountainCarEnv, got {type(car).__name__}"
         )
-    if max_steps is None:
-        spec = getattr(env, "spec", None)
-        max_steps = (spec.max_episode_steps if spec else None) or DEFAULT_MAX_STEPS
     return rollout(policy, starts, car.gamma, max_steps, render=car.percepts)

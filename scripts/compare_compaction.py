@@ -4,8 +4,7 @@ python scripts/compare_compaction.py                                   # the vis
 python scripts/compare_compaction.py --env-kwargs '{"photo": "hubble_deep_field"}'  # Fig. 5
 python scripts/compare_compaction.py --env vistask/PlaceNavigation-v0
 python scripts/compare_compaction.py --env vistask/PlaceNavigation-v0 \
-    --env-kwargs '{"views_per_state": 512}' --contrast-threshold 0.02 \
-    --interactions 600000 --max-stages 3000          # tree 0.91, BDD 0.94 of the oracle
+    --env-kwargs '{"views_per_state": 512}' --interactions 600000   # tree 0.91, BDD 0.94
 """
 
 import argparse
@@ -28,13 +27,16 @@ def main() -> None:
     )
     parser.add_argument("--tolerance", type=unit_fraction, default=0.02)
     parser.add_argument(
-        "--max-stages", type=positive_int, default=300, help="agents' stage cap per database"
+        "--max-stages",
+        type=positive_int,
+        default=None,
+        help="agents' stage cap per database (default: the env's hyperparameters, else 300)",
     )
     parser.add_argument(
         "--contrast-threshold",
         type=unit_fraction,
         default=None,
-        help="SIFT's detection threshold (default: the agent's, 0.005)",
+        help="SIFT's detection threshold (default: the env's hyperparameters, else 0.005)",
     )
     parser.add_argument(
         "--out",

@@ -4,11 +4,10 @@ oracle, compare the greedy policy with the oracle's.
 python scripts/train_rlvc.py                       # the visual maze, 40,000 interactions
 python scripts/train_rlvc.py --seed 3 --out runs/s3
 python scripts/train_rlvc.py --env-kwargs '{"layout_seed": 7}'   # another maze layout
-python scripts/train_rlvc.py --env vistask/VisualMountainCar-v0 --compounds   # paper Figs. 6-7
-python scripts/train_rlvc.py --env vistask/VisualMountainCar-v0 --compounds --compaction
-python scripts/train_rlvc.py --env vistask/VisualMountainCar-v0 --compounds --compaction \
-    --compaction-tolerance 0.01 --structures 11 --vocabulary-groups 16 \
-    --env-kwargs '{"max_episode_steps": 20}'       # the README's car
+python scripts/train_rlvc.py --env vistask/VisualMountainCar-v0   # paper Figs. 6-7
+python scripts/train_rlvc.py --env vistask/VisualMountainCar-v0 \
+    --hyperparams 'compaction={structures: 1}'     # the car's settings, one class structure
+python scripts/train_rlvc.py --hyperparams compounds=true 'compaction={tolerance: 0.01}'
 python scripts/train_rlvc.py --env vistask/VisualMazeContinuous-v0   # RLJC, paper Fig. 10
 python scripts/train_rlvc.py --resume runs/s3      # go on after a stop (Ctrl-C, kill)
 """
@@ -27,11 +26,10 @@ from vistask.cli import (
     positive_int,
     run_main,
     stopped_run_settings,
-    unit_fraction,
 )
+from vistask.experiments.hyperparams import agent_kwargs, hyperparams_for, parse_overrides
 from vistask.experiments.train_rljc import train_rljc
 from vistask.experiments.train_rlvc import train_rlvc
-from vistask.features.vocabulary import VOCABULARY_GROUPS
 
 
 def main() -> None:
@@ -50,30 +48,13 @@ def main() -> None:
     parser.add_argument(
         "--out", default=None, help="default runs/train_rlvc-<time> (RLJC: train_rljc-<time>)"
     )
-    parser.add_argument("--compounds", action="store_true", help="let RLVC make compound features")
     parser.add_argument(
-        "--compaction", action="store_true", help="RLVC's classes in a BDD, merged by compaction"
-    )
-    parser.add_argument(
-        "--compaction-tolerance",
-        type=unit_fraction,
-        default=None,
-        help="with --compaction: merge classes whose values differ by at most this share of "
-        "their range (default 0.02; 0.01 does better on the car)",
-    )
-    parser.add_argument(
-        "--structures",
-        type=positive_int,
-        default=1,
-        help="with --compaction: when learning ends, fuse this many class structures, the "
-        "learned one and others on bootstrap samples of its interactions (RLVC.fuse)",
-    )
-    parser.add_argument(
-        "--vocabulary-groups",
-        type=positive_int,
-        default=None,
-        help="coarse groups of the vocabulary, the parts of compound features (default 64; "
-        "16 on the car: coarser parts)",
+        "--hyperparams",
+        nargs="+",
+        default=[],
+        metavar="KEY=VALUE",
+        help="RLVCAgent arguments over the env's entry in vistask/experiments/hyperparams/"
+        "rlvc.yml, each value read as YAML (compounds=true 'compaction={tolerance: 0.01}')",
     )
     parser.add_argument(
         "--resume",
@@ -83,10 +64,10 @@ def main() -> None:
     )
     parser.add_argument("--no-progress", action="store_true")
     args = parser.parse_args()
-    if args.compaction_tolerance is not None and not args.compaction:
-        parser.error("--compaction-tolerance needs --compaction")
-    if args.structures > 1 and not args.compaction:
-        parser.error("--structures needs --compaction")
+    try:
+        overrides = parse_overrides(args.hyperparams)
+    except ValueError as error:
+        parser.error(f"argument --hyperparams: {error}")
     run = dict(env_id=args.env, env_kwargs=args.env_kwargs, seed=args.seed, out=args.out)
     run["progress"] = not args.no_progress
     if args.interactions is not None:
@@ -97,32 +78,22 @@ def main() -> None:
         saved = stopped_run_settings(parser, args.resume, "settings.json", runs)
         if (args.resume / "summary.json").exists():
             parser.error(f"argument --resume: {args.resume} holds a finished run (summary.json)")
-        args.compounds = saved.pop("compounds", False)
-        args.compaction = saved.pop("compaction", False)
-        args.compaction_tolerance = saved.pop("compaction_tolerance", None)
-        args.structures = saved.pop("structures", 1)
-        args.vocabulary_groups = saved.pop("vocabulary_groups", None)
+        overrides = saved.pop("hyperparams", {})
         run = {**saved, "out": args.resume, "progress": run["progress"]}
         args.env, args.env_kwargs = saved["env_id"], saved["env_kwargs"]
     interrupt_on_sigterm()
     env = gym.make(args.env, **args.env_kwargs)
     env.close()
     if isinstance(env.action_space, gym.spaces.Box):
-        if args.compounds or args.compaction or args.vocabulary_groups is not None:
-            parser.error(
-                "--compounds, --compaction and --vocabulary-groups apply to RLVC (discrete "
-                "actions), not RLJC"
-            )
+        if args.hyperparams:
+            parser.error("--hyperparams applies to RLVC (discrete actions), not RLJC")
         train_rljc(**run)
     else:
-        train_rlvc(
-            **run,
-            compounds=args.compounds,
-            compaction=args.compaction,
-            compaction_tolerance=args.compaction_tolerance,
-            structures=args.structures,
-            vocabulary_groups=args.vocabulary_groups or VOCABULARY_GROUPS,
-        )
+        try:  # an unknown key or a wrong compaction fails here, not after minutes
+            agent_kwargs(hyperparams_for(args.env, overrides))
+        except ValueError as error:
+            parser.error(f"argument --hyperparams: {error}")
+        train_rlvc(**run, hyperparams=overrides)
 
 
 if __name__ == "__main__":

@@ -13,6 +13,7 @@ from stable_baselines3.common.callbacks import CheckpointCallback, EvalCallback
 
 from vistask.agents import Compaction, RLVCAgent, TabularQAgent
 from vistask.envs import MazeOracle, VisualMazeEnv, evaluate_policy, start_positions
+from vistask.experiments.hyperparams import agent_kwargs, hyperparams_for, parse_overrides
 from vistask.experiments.tasks import MazeTask
 from vistask.experiments.train_rlvc import (
     agent_policy,
@@ -334,10 +335,11 @@ def test_train_rlvc_writes_a_summary_that_its_saved_agent_reproduces(tmp_path):
     assert summary["starts_never_exiting"] == int((result.returns == 0).sum())
 
 
-def test_train_rlvc_passes_its_options_to_the_agent_and_keeps_them_for_resuming(tmp_path):
+def test_train_rlvc_passes_its_hyperparams_to_the_agent_and_keeps_them_for_resuming(tmp_path):
     run = dict(env_kwargs=SMALL, interactions=2000, out=tmp_path, progress=False, pictures=False)
-    options = dict(compounds=True, compaction=True, compaction_tolerance=0.01)
-    summary = train_rlvc(**run, **options, vocabulary_groups=4)
+    options = {"compounds": True, "compaction": {"tolerance": 0.01}, "vocabulary_groups": 4}
+    summary = train_rlvc(**run, hyperparams=options)
+    assert summary["hyperparams"] == options  # the maze has no entry in the table
     assert summary["compaction_tolerance"] == 0.01 and summary["vocabulary_groups"] == 4
     agent = RLVCAgent.load(tmp_path / "rlvc_agent.pt", gym.make("vistask/VisualMaze-v0", **SMALL))
     assert agent.compaction == Compaction(tolerance=0.01)
@@ -346,15 +348,35 @@ def test_train_rlvc_passes_its_options_to_the_agent_and_keeps_them_for_resuming(
     words = agent.extractor.n_features
     for compound in agent.rlvc.compounds:
         assert all(p < 4 or p >= words for p in (compound.first, compound.second))
-    with pytest.raises(ValueError, match=r"other settings \(compaction_tolerance\)"):
-        train_rlvc(**run, **{**options, "compaction_tolerance": 0.05}, vocabulary_groups=4)
-    with pytest.raises(ValueError, match=r"other settings \(vocabulary_groups\)"):
-        train_rlvc(**run, **options)
+    with pytest.raises(ValueError, match=r"other settings \(hyperparams\)"):
+        train_rlvc(**run, hyperparams={**options, "vocabulary_groups": 8})
+    with pytest.raises(ValueError, match="unknown hyperparameter 'seed'"):
+        train_rlvc(**run, hyperparams={"seed": 1})
+
+
+def test_hyperparams_take_the_env_entry_and_override_a_mapping_key_by_key():
+    car = hyperparams_for("vistask/VisualMountainCar-v0")
+    assert car["compounds"] and car["compaction"]["structures"] == 11
+    fewer = hyperparams_for(
+        "vistask/VisualMountainCar-v0", parse_overrides(["compaction={structures: 3}"])
+    )
+    assert fewer["compaction"] == {**car["compaction"], "structures": 3}
+    assert agent_kwargs(fewer)["compaction"] == Compaction(tolerance=0.01, structures=3)
+    assert hyperparams_for("vistask/VisualMaze-v0") == {}  # the defaults
+    assert parse_overrides(["compounds=true", "alpha=0.01", "gamma=null"]) == {
+        "compounds": True,
+        "alpha": 0.01,
+        "gamma": None,
+    }
+    with pytest.raises(ValueError, match="key=value"):
+        parse_overrides(["compounds"])
+    with pytest.raises(ValueError, match="compaction takes true, false or a mapping"):
+        hyperparams_for("vistask/VisualMaze-v0", {"compaction": {"tolerence": 0.01}})
 
 
 def test_train_rlvc_fuses_class_structures_and_the_saved_agent_acts_on_them(tmp_path):
     run = dict(env_kwargs=SMALL, interactions=2000, out=tmp_path, progress=False, pictures=False)
-    summary = train_rlvc(**run, compaction=True, structures=3)
+    summary = train_rlvc(**run, hyperparams={"compaction": {"structures": 3}})
     assert summary["structures"] == 3
     env = gym.make("vistask/VisualMaze-v0", **SMALL)
     agent = RLVCAgent.load(tmp_path / "rlvc_agent.pt", env)
@@ -364,8 +386,6 @@ def test_train_rlvc_fuses_class_structures_and_the_saved_agent_acts_on_them(tmp_
     assert evaluate_policy(env, agent_policy(agent), starts).mean == pytest.approx(
         summary["rlvc_return"]
     )
-    with pytest.raises(ValueError, match="need compaction=True"):
-        train_rlvc(**run, structures=3)
 
 
 def test_a_classifier_with_compounds_round_trips_and_tests_them(small_agent, tmp_path):
@@ -391,9 +411,10 @@ def test_a_classifier_with_compounds_round_trips_and_tests_them(small_agent, tmp
 def test_train_rlvc_on_the_car_scores_against_its_oracle_and_draws_it(tmp_path):
     env_id = "vistask/VisualMountainCar-v0"
     # 20 starts: the score of an agent this young takes most of the time at the 100 default.
-    summary = train_rlvc(
-        env_id, interactions=2000, out=tmp_path, progress=False, compounds=True, eval_starts=20
-    )
+    # The car's entry in the table, but one structure without compaction: quicker.
+    run = dict(interactions=2000, out=tmp_path, progress=False, eval_starts=20)
+    summary = train_rlvc(env_id, **run, hyperparams={"compaction": False})
+    assert summary["hyperparams"]["compounds"] and summary["vocabulary_groups"] == 16
     for key in ("stages", "classes", "selected_features", "compound_features", "seconds"):
         assert key in summary
     assert summary["interactions"] == 2000

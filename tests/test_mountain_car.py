@@ -111,7 +111,7 @@ def test_gymnasium_env_checker_passes():
 
 def test_registration_and_reset(env):
     made = gym.make("vistask/VisualMountainCar-v0")
-    assert made.spec.max_episode_steps == 100 and made.unwrapped.gamma == GAMMA
+    assert made.spec.max_episode_steps == 20 and made.unwrapped.gamma == GAMMA
     obs, info = made.reset(seed=0, options={"state": (-0.5, 0.25)})
     assert obs.shape == (96, 192, 3) and obs.dtype == np.uint8
     np.testing.assert_array_equal(info["position"], [-0.5, 0.25])

@@ -23,6 +23,7 @@ import numpy as np
 
 import vistask.envs  # noqa: F401  (registers the envs in the fresh process)
 from vistask.agents import RLVCAgent
+from vistask.experiments.hyperparams import agent_kwargs, hyperparams_for
 from vistask.experiments.tasks import task_for
 from vistask.experiments.train_rlvc import agent_policy
 from vistask.memory import PeakMemory
@@ -30,18 +31,16 @@ from vistask.parallel import map_runs
 from vistask.rlvc import collect
 from vistask.runs import append_record, check_same_settings, read_records, run_dir, write_summary
 
-# Per env: the budgets, and the env and agent settings of its README line (place navigation:
-# the paper's Figs. 8-9 run of compare_compaction.py, BDD).
+# Per env: the budgets and the env settings of its README line (place navigation: the paper's
+# Figs. 8-9 run of compare_compaction.py); the agent takes the env's hyperparameters (BDD).
 ENVS = {
     "vistask/VisualMaze-v0": {
         "budgets": (40_000, 80_000, 160_000, 320_000),
         "env_kwargs": {},
-        "agent": {},
     },
     "vistask/PlaceNavigation-v0": {
         "budgets": (75_000, 150_000, 300_000, 600_000),
         "env_kwargs": {"views_per_state": 512},
-        "agent": {"contrast_threshold": 0.02, "max_stages": 3000, "compaction": True},
     },
 }
 PHASES = ("collect", "features", "split", "compaction", "q", "evaluation", "other")
@@ -74,7 +73,7 @@ def scale_run(env_id: str, budget: int, seed: int = 0) -> dict:
     task = task_for(env_id, settings["env_kwargs"])
     with PeakMemory() as memory:
         start = time.perf_counter()
-        agent = RLVCAgent(env, seed=seed, **settings["agent"]).learn(budget)
+        agent = RLVCAgent(env, seed=seed, **agent_kwargs(hyperparams_for(env_id))).learn(budget)
         learned = time.perf_counter()
         return_ratio = task.evaluate(agent_policy(agent)).mean / task.oracle_return
         evaluated = time.perf_counter()

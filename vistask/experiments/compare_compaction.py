@@ -25,6 +25,7 @@ import vistask.envs  # noqa: F401  (registers the environments)
 from vistask.agents import Compaction, RLVCAgent
 from vistask.envs.place_plots import draw_world, view_sheet
 from vistask.experiments import statistics
+from vistask.experiments.hyperparams import agent_kwargs, hyperparams_for
 from vistask.experiments.tasks import PlaceTask, Task, task_for
 from vistask.experiments.train_rlvc import agent_policy
 from vistask.runs import (
@@ -63,18 +64,18 @@ def run_method(
     interactions: int,
     seed: int,
     compaction: Compaction,
-    agent_kwargs: dict,
+    agent_settings: dict,
     out: Path,
     progress: bool,
 ) -> tuple[dict, list[dict]]:
-    """Learn one agent (``compaction`` for the BDD's); returns its measures and its
-    per-stage (classes, features) history."""
+    """Learn one agent (``agent_settings``: ``RLVCAgent`` arguments; ``compaction`` for the
+    BDD's); returns its measures and its per-stage (classes, features) history."""
     agent = RLVCAgent(
         env,
         compaction=compaction if method == "bdd" else False,
         seed=seed,
         tensorboard_log=out / "tensorboard",
-        **agent_kwargs,
+        **agent_settings,
     )
     start = time.perf_counter()
     agent.learn(interactions, tb_log_name=f"{method}-seed{seed}", progress_bar=progress)
@@ -147,14 +148,15 @@ def compare_compaction(
     interactions: int = 30_000,
     compact_every: int | None = None,
     tolerance: float = 0.02,
-    max_stages: int = 300,
+    max_stages: int | None = None,
     contrast_threshold: float | None = None,
     out: str | Path | None = None,
     progress: bool = True,
 ) -> dict:
     """Learn tree RLVC and BDD RLVC with the same seeds on an env with an oracle.
 
-    Both learn with ``RLVCAgent``'s defaults; the BDD agent also compacts when learning
+    Both learn with the env's hyperparameters (``hyperparams_for``: its entry in the table,
+    else ``RLVCAgent``'s defaults), without compaction; the BDD agent compacts when learning
     stops (and every ``compact_every`` stages if given) with ``tolerance``. Writes
     ``summary.json`` (per method: the mean of each measure over seeds, its IQM with a 95%
     interval, and the per-seed values; on place navigation also ``train_error``, the test
@@ -171,8 +173,10 @@ def compare_compaction(
         methods: ``tree``, ``bdd`` or both.
         interactions: interactions per run.
         compact_every, tolerance: the BDD agent's ``Compaction(every=, tolerance=)``.
-        max_stages: both agents' stage cap (``RLVCAgent``'s ``max_stages``).
-        contrast_threshold: both agents' SIFT detection threshold (default: the agent's).
+        max_stages: both agents' stage cap (``RLVCAgent``'s ``max_stages``; default: the
+            env's hyperparameters').
+        contrast_threshold: both agents' SIFT detection threshold (default: the env's
+            hyperparameters').
         out: output folder (default ``runs/compare_compaction-<time>``); an existing one
             with the same settings is resumed.
         progress: show progress bars.
@@ -193,17 +197,17 @@ def compare_compaction(
     train_set = task.train_set() if hasattr(task, "train_set") else None
     measures = MEASURES + (("train_error",) if train_set is not None else ())
     compaction = Compaction(tolerance=tolerance, every=compact_every)
-    agent_kwargs = {"max_stages": max_stages}
-    if contrast_threshold is not None:
-        agent_kwargs["contrast_threshold"] = contrast_threshold
+    given = {"max_stages": max_stages, "contrast_threshold": contrast_threshold}
+    overrides = {key: value for key, value in given.items() if value is not None}
+    hyperparams = hyperparams_for(env_id, overrides)
+    hyperparams.pop("compaction", None)  # the methods set it
     settings = {
         "env_id": env_id,
         "env_kwargs": env_kwargs,
         "interactions": interactions,
         "compact_every": compact_every,
         "tolerance": tolerance,
-        "max_stages": max_stages,
-        "contrast_threshold": contrast_threshold,
+        "hyperparams": hyperparams,
     }
     finished = load_finished(out, settings)
     runs = {m: [] for m in methods}
@@ -222,7 +226,7 @@ def compare_compaction(
                     interactions,
                     seed,
                     compaction,
-                    agent_kwargs,
+                    agent_kwargs(hyperparams),
                     out,
                     progress,
                 )

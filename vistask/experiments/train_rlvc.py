@@ -23,15 +23,15 @@ from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.evaluation import evaluate_policy as sb3_evaluate_policy
 
 import vistask.envs  # noqa: F401  (registers the environments)
-from vistask.agents import Compaction, RLVCAgent
+from vistask.agents import RLVCAgent
 from vistask.agents.visual_agent import VisualAgent
 from vistask.checks import check_at_least
 from vistask.envs.car_plots import percepts_at, plot_car_policy, plot_road, state_grid
 from vistask.envs.maze_oracle import Policy
 from vistask.envs.maze_plots import percept_grid, plot_policy, plot_values
+from vistask.experiments.hyperparams import agent_kwargs, hyperparams_for
 from vistask.experiments.tasks import CarTask, MazeTask, Task, task_for
 from vistask.features import draw_compound
-from vistask.features.vocabulary import VOCABULARY_GROUPS
 from vistask.rlvc import InteractionDatabase, Transitions
 from vistask.rlvc.solver import estimate_mdp, value_iteration
 from vistask.runs import (
@@ -331,15 +331,12 @@ def train_rlvc(
     out: str | Path | None = None,
     progress: bool = True,
     pictures: bool = True,
-    compounds: bool = False,
-    compaction: bool = False,
-    compaction_tolerance: float | None = None,
-    structures: int = 1,
-    vocabulary_groups: int = VOCABULARY_GROUPS,
+    hyperparams: dict | None = None,
     eval_starts: int = EVAL_STARTS,
 ) -> dict:
-    """Learn visual classes with ``RLVCAgent``'s defaults, score the greedy policy, save the
-    agent, its TensorBoard run, pictures and ``summary.json`` in ``out``.
+    """Learn visual classes with ``RLVCAgent``'s settings for ``env_id`` (its entry in
+    ``hyperparams/rlvc.yml``, else the defaults), score the greedy policy, save the agent, its
+    TensorBoard run, pictures and ``summary.json`` in ``out``.
 
     Args:
         env_id, env_kwargs: the env (``gym.make`` arguments): image observations, Discrete
@@ -350,12 +347,8 @@ def train_rlvc(
             left goes on from its checkpoint (``learn_resumable``), with the same settings.
         progress: show progress bars.
         pictures: draw values and policies (the maze, the car).
-        compounds: let the agent make compound features (``RLVCAgent``'s ``compounds``).
-        compaction: hold the agent's classes in a BDD and merge them (``compaction``).
-        compaction_tolerance: the agent's ``compaction_tolerance`` (None: its default).
-        structures: class structures the agent fuses when learning ends (``structures``).
-        vocabulary_groups: coarse groups of the agent's vocabulary, the parts of its
-            compounds (``vocabulary_groups``).
+        hyperparams: ``RLVCAgent`` arguments over the table's entry for ``env_id``
+            (``hyperparams_for``), e.g. ``{"compaction": False}``.
         eval_starts: starts the greedy policy is scored from on the maze and the car (seeded
             episodes on an env without an oracle); fewer score faster and noisier.
 
@@ -363,33 +356,18 @@ def train_rlvc(
         The summary written to ``summary.json``.
     """
     check_at_least(1, eval_starts=eval_starts)
-    if compaction:
-        tolerance = Compaction.tolerance if compaction_tolerance is None else compaction_tolerance
-        compaction = Compaction(tolerance=tolerance, structures=structures)
-    elif compaction_tolerance is not None or structures != 1:
-        raise ValueError("compaction_tolerance and structures need compaction=True")
+    hyperparams = hyperparams_for(env_id, hyperparams)
     start = time.perf_counter()
     out = run_dir("train_rlvc", out)
     settings = {"env_id": env_id, "env_kwargs": env_kwargs or {}, "interactions": interactions}
     if eval_starts != EVAL_STARTS:
         settings["eval_starts"] = eval_starts
-    options = {"compounds": compounds, "compaction": bool(compaction)}
-    if compaction_tolerance is not None:
-        options["compaction_tolerance"] = compaction_tolerance
-    if structures != 1:  # runs saved without the option resume as before
-        options["structures"] = structures
-    if vocabulary_groups != VOCABULARY_GROUPS:
-        options["vocabulary_groups"] = vocabulary_groups
-    check_same_settings(out / "settings.json", {**settings, "seed": seed, **options})
+    settings |= {"seed": seed, "hyperparams": hyperparams}
+    check_same_settings(out / "settings.json", settings)
     env = gym.make(env_id, **(env_kwargs or {}))
     scorer = Scorer(env_id, env_kwargs, eval_starts)
     agent = RLVCAgent(
-        env,
-        compounds=compounds,
-        compaction=compaction,
-        vocabulary_groups=vocabulary_groups,
-        seed=seed,
-        tensorboard_log=out / "tensorboard",
+        env, **agent_kwargs(hyperparams), seed=seed, tensorboard_log=out / "tensorboard"
     )
     evaluations = EvaluateEvery(scorer)
     agent, before = learn_resumable(agent, interactions, out, evaluations, progress)
@@ -401,6 +379,7 @@ def train_rlvc(
     summary = {
         "env_id": env_id,
         "env_kwargs": env_kwargs or {},
+        "hyperparams": hyperparams,
         "rlvc_return": final_return,
         "stages": len(rlvc.history),
         "classes": rlvc.n_classes,

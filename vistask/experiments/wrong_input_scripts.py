@@ -37,9 +37,7 @@ def script_cases() -> list[Case]:
         "train_rlvc.py": {
             "--interactions": ("0", "1.5", "ten"),
             "--seed": ("-1", "x"),
-            "--compaction-tolerance": ("1.5", "nan"),
-            "--structures": ("0",),
-            "--vocabulary-groups": ("0",),
+            "--hyperparams": ("compounds", "=1"),
         },
         "compare_baselines.py": {
             "--seeds": ("0",),
@@ -91,6 +89,14 @@ def script_cases() -> list[Case]:
             [script, "--env-kwargs", '{"gamma": 1.5}'],
             "gamma",
         )
+    for what, value, name in (
+        ("unknown key", "seed=1", "seed"),
+        ("compaction out of range", "compaction={tolerance: 1.5}", "tolerance"),
+        ("structures of 0", "compaction={structures: 0}", "structures"),
+        ("alpha out of range", "alpha=2", "alpha"),
+        ("vocabulary_groups of 0", "vocabulary_groups=0", "vocabulary_groups"),
+    ):
+        add(f"train_rlvc.py --hyperparams {what}", ["train_rlvc.py", "--hyperparams", value], name)
     for script in ("train_rlvc.py", "compare_baselines.py", "compare_compaction.py"):
         add(f"{script} --env NoSuchEnv-v0", [script, "--env", "NoSuchEnv-v0"], "NoSuchEnv")
         add(
