@@ -69,7 +69,9 @@ from vistask.envs.scene import (
     TABLE_TOP_Z,
     add_cameras,
     body_bounds,
+    free_joint,
     render_view,
+    subtree_geoms,
     table_arena,
     wxyz_to_xyzw,
     xyzw_to_wxyz,
@@ -146,8 +148,9 @@ class _GraspScene(ManipulationEnv):
         super()._setup_references()
         m = self.sim.model._model
         self.body_ids = [m.body(o.root_body).id for o in self.objects]
-        self.qpos_addr = [int(m.joint(o.joints[0]).qposadr[0]) for o in self.objects]
-        self.qvel_addr = [int(m.joint(o.joints[0]).dofadr[0]) for o in self.objects]
+        joints = [free_joint(m, o) for o in self.objects]
+        self.qpos_addr = [int(joint.qposadr[0]) for joint in joints]
+        self.qvel_addr = [int(joint.dofadr[0]) for joint in joints]
 
     def reward(self, action: Any = None) -> float:
         return 0.0
@@ -304,9 +307,10 @@ class GraspTrialEnv(gym.Env):
     # -- geometry -----------------------------------------------------------------------
 
     def _collision_bounds(self, body: int) -> np.ndarray:
-        """(2, 3) body-frame AABB of all geoms of ``body`` (collision geoms decide the rest)."""
+        """(2, 3) body-frame AABB of all geoms of the object whose root body is ``body``, its
+        other bodies included (collision geoms decide the rest)."""
         m, d = self._sim.model._model, self._sim.data._data
-        return body_bounds(m, d, body, np.nonzero(m.geom_bodyid == body)[0])
+        return body_bounds(m, d, body, subtree_geoms(m, body))
 
     @property
     def workspace(self) -> Workspace:

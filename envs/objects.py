@@ -11,8 +11,8 @@
   ``horizontal_radius_site`` next to it, as in robosuite's ``models/assets/objects``.
 
 Objects that robosuite generates at random sizes (boxes, cylinders) are built with a fixed
-generator, so every process builds the same object. The shape symmetry of robosuite's objects
-is known here (it only scores pose errors); other objects have none unless given.
+generator, so every process builds the same object. An object's symmetry is estimated from its
+model (``shape_symmetry``): the rotations that turn its surface onto itself.
 
 Poses are (7,) ``[tx, ty, tz, qx, qy, qz, qw]`` (roma XYZW), object frame -> world.
 """
@@ -32,7 +32,7 @@ import roma
 import torch
 from torch import Tensor
 
-from vistask.vision import Symmetry
+from vistask.vision import Symmetry, estimate_symmetry
 
 # Distractors of tabletop scenes and grasp trials when none are named.
 DEFAULT_DISTRACTORS = ("cereal", "milk", "bread", "hammer", "can", "box")
@@ -83,33 +83,26 @@ def _fixed(cls: type, **kwargs) -> Callable[[str], object]:
     return make
 
 
-# Shape symmetries of robosuite's objects; textures (can label, cereal print) are ignored,
-# as in the paper's error measure. Milk carton and cereal box render identically after half
-# a turn about z (same print front and back; checked on rendered images).
-_SYMMETRIES: dict[str, Callable[[], Symmetry]] = {
-    "CanObject": Symmetry.about_axis,
-    "BottleObject": Symmetry.about_axis,
-    "CylinderObject": Symmetry.about_axis,
-    "MilkObject": lambda: Symmetry.about_axis((0.0, 0.0, 1.0), order=2),
-    "CerealObject": Symmetry.box,
-    "BoxObject": Symmetry.box,
-    # Flat rings with a handle along x: the same shape turned upside down about the handle.
-    "SquareNutObject": lambda: Symmetry.about_axis((1.0, 0.0, 0.0), order=2),
-    "RoundNutObject": lambda: Symmetry.about_axis((1.0, 0.0, 0.0), order=2),
-    # An ellipsoid of uniform texture: any turn about its long axis, and end for end. Its
-    # cross-section is 40 x 43 mm, so a turn about that axis moves its outline 1.5 mm at most.
-    "LemonObject": lambda: Symmetry(
-        Symmetry.about_axis((0.0, 0.0, 1.0), order=2).rotations, axis=torch.tensor([1.0, 0.0, 0.0])
-    ),
-}
+# Objects whose texture tells apart poses that their shape does not: only the crust tells a
+# loaf of bread from the loaf turned by half a turn about its z. Their ``symmetry`` is none,
+# their ``shape_symmetry`` the shape's.
+_TEXTURED = ("BreadObject",)
+_SHAPES: dict[str, Symmetry] = {}  # estimated shape symmetries, by class name or file
 
-# Shapes whose texture alone tells poses apart that the shape does not: only the crust tells
-# a loaf of bread from the loaf turned by half a turn about its z.
-_SHAPE_ONLY: dict[str, Callable[[], Symmetry]] = {
-    "BreadObject": lambda: Symmetry.about_axis((0.0, 0.0, 1.0), order=2),
-}
 
-_PRESETS: dict[str, ObjectSpec] = {}
+def shape_symmetry(label: str, make: Callable[[str], object]) -> Symmetry:
+    """The rotational symmetry of the shape of the object ``make`` builds, estimated from its
+    model (``estimate_symmetry`` on its surface points) once per process for each ``label``;
+    textures are not seen."""
+    if label not in _SHAPES:
+        from vistask.envs.object_shape import shape_tolerance, surface_points
+
+        points = surface_points(make("probe"))
+        _SHAPES[label] = estimate_symmetry(points, shape_tolerance(points))
+    return _SHAPES[label]
+
+
+_PRESETS: dict[str, ObjectSpec | Callable[[], ObjectSpec]] = {}  # a spec, or its maker
 
 
 def _can_tip(symmetry: Symmetry) -> bool:
@@ -123,12 +116,18 @@ def register_object(spec: ObjectSpec) -> None:
     _PRESETS[spec.name] = spec
 
 
-def _preset(name: str, cls_name: str, symmetry: Symmetry | None = None, **kwargs) -> None:
+def _preset(name: str, cls_name: str, **kwargs) -> None:
+    """Register a robosuite object of fixed sizes; its symmetry is estimated when first used
+    (building it imports robosuite)."""
+
     def make(instance: str):
         return _fixed(_robosuite_classes()[cls_name], **kwargs)(instance)
 
-    sym = symmetry or _SYMMETRIES.get(cls_name, Symmetry.none)()
-    register_object(ObjectSpec(name, make, sym, can_tip=_can_tip(sym)))
+    def spec() -> ObjectSpec:
+        sym = shape_symmetry(name, make)
+        return ObjectSpec(name, make, sym, can_tip=_can_tip(sym))
+
+    _PRESETS[name] = spec
 
 
 _preset("box", "BoxObject", size=(0.045, 0.03, 0.02), rgba=(0.15, 0.45, 0.8, 1.0))
@@ -181,7 +180,26 @@ def _mjcf_spec(path: Path) -> ObjectSpec:
             fname, instance, joints=[{"type": "free", "damping": "0.0005"}], obj_type="all"
         )
 
-    return ObjectSpec(name, make, Symmetry.none())
+    _check_buildable(str(path), make)
+    return ObjectSpec(name, make, shape_symmetry(fname, make))
+
+
+def _check_buildable(label: str, make: Callable[[str], object]) -> None:
+    """Build the object once; raise ValueError naming ``label`` and why it cannot stand on
+    the table: robosuite cannot build it from a name alone (a base class), it has no
+    collision geoms (a visual-only twin) or no free joint (a fixture such as a door)."""
+    try:
+        obj = make("probe")
+    except Exception as error:  # robosuite raises TypeError, AssertionError, ... alike
+        reason = f"{type(error).__name__}: {error}"
+        raise ValueError(f"{label}: robosuite cannot build it ({reason})") from None
+    if obj.obj_type == "visual":
+        raise ValueError(f"{label} has only visual geoms: nothing to collide with or grasp")
+    if not any(joint.get("type") == "free" for joint in obj.get_obj().iter("joint")):
+        raise ValueError(
+            f"{label} has no free joint (a fixture, such as a door in its frame): it cannot "
+            "be placed on the table"
+        )
 
 
 def object_spec(name: str | Path | ObjectSpec) -> ObjectSpec:
@@ -189,7 +207,8 @@ def object_spec(name: str | Path | ObjectSpec) -> ObjectSpec:
     module docstring).
 
     Raises:
-        ValueError: nothing of that name, or a missing file.
+        ValueError: nothing of that name, a missing file, or an object that cannot stand on
+            the table (a base class, a visual-only twin, a fixture without a free joint).
     """
     if isinstance(name, ObjectSpec):
         return name
@@ -197,6 +216,8 @@ def object_spec(name: str | Path | ObjectSpec) -> ObjectSpec:
     if text.endswith(".xml"):
         return _mjcf_spec(Path(text))
     if text in _PRESETS:
+        if not isinstance(_PRESETS[text], ObjectSpec):
+            _PRESETS[text] = _PRESETS[text]()
         return _PRESETS[text]
     classes = _robosuite_classes()
     cls_name = _class_name(text)
@@ -205,15 +226,17 @@ def object_spec(name: str | Path | ObjectSpec) -> ObjectSpec:
             f"unknown object {text!r}: name a preset {sorted(_PRESETS)}, a robosuite object "
             "class (e.g. 'can', 'LemonObject') or an MJCF file ending in .xml"
         )
-    sym = _SYMMETRIES.get(cls_name, Symmetry.none)()
+    make = _fixed(classes[cls_name])
+    _check_buildable(cls_name, make)
+    shape = shape_symmetry(cls_name, make)
+    sym = Symmetry.none() if cls_name in _TEXTURED else shape
     snake = re.sub(r"(?<!^)(?=[A-Z])", "_", cls_name.removesuffix("Object")).lower()
-    shape = _SHAPE_ONLY.get(cls_name)
     return ObjectSpec(
         snake,
-        _fixed(classes[cls_name]),
+        make,
         sym,
-        can_tip=_can_tip(sym),
-        shape_symmetry=None if shape is None else shape(),
+        can_tip=_can_tip(shape),
+        shape_symmetry=shape if cls_name in _TEXTURED else None,
     )
 
 

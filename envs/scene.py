@@ -183,3 +183,26 @@ def body_bounds(
         points.append((world - t_b) @ R_b)
     pts = np.concatenate(points)
     return np.stack([pts.min(0), pts.max(0)])
+
+
+def subtree_geoms(model: mujoco.MjModel, body: int) -> np.ndarray:
+    """(G,) ids of the geoms of ``body`` and of every body below it (``body`` a child of the
+    world, as an object's root body is): a lid on a hinge or a handle is part of the object."""
+    return np.nonzero(model.body_rootid[model.geom_bodyid] == body)[0]
+
+
+def free_joint(model: mujoco.MjModel, obj) -> mujoco._structs._MjModelJointViews:
+    """The free joint of the robosuite object ``obj`` (listed among its own joints, such as
+    a lid's hinge, in any order).
+
+    Raises:
+        ValueError: the object has no free joint, so it cannot be placed.
+    """
+    for name in obj.joints:
+        joint = model.joint(name)
+        if joint.type[0] == mujoco.mjtJoint.mjJNT_FREE:
+            return joint
+    raise ValueError(
+        f"object {obj.name!r} has no free joint among its joints {list(obj.joints)}: an "
+        "object on the table must move freely"
+    )

@@ -59,8 +59,10 @@ from vistask.envs.scene import (
     CameraSpec,
     add_cameras,
     body_bounds,
+    free_joint,
     render_view,
     sim_camera,
+    subtree_geoms,
     table_arena,
     wxyz_to_xyzw,
     xyzw_to_wxyz,
@@ -148,12 +150,11 @@ class TabletopWorld:
         m = self.sim.model._model
         self._m, self._d = m, self.sim.data._data
         body = {k: m.body(o.root_body).id for k, o in zip(self.kinds, objects, strict=True)}
-        joint = {k: m.joint(o.joints[0]) for k, o in zip(self.kinds, objects, strict=True)}
+        joint = {k: free_joint(m, o) for k, o in zip(self.kinds, objects, strict=True)}
         self._qadr = {k: int(joint[k].qposadr[0]) for k in self.kinds}
         self._vadr = {k: int(joint[k].dofadr[0]) for k in self.kinds}
         self._body = body
-        root_of_geom = m.body_rootid[m.geom_bodyid]
-        self._geoms = {k: np.nonzero(root_of_geom == body[k])[0] for k in self.kinds}
+        self._geoms = {k: subtree_geoms(m, body[k]) for k in self.kinds}
         self._contype = m.geom_contype.copy()
         self._conaffinity = m.geom_conaffinity.copy()
         self._group = m.geom_group.copy()

@@ -201,3 +201,16 @@ def test_estimated_poses_drive_the_trials() -> None:
             np.testing.assert_allclose(a["grasp"], b["grasp"], atol=1e-6)  # object frame
     finally:
         runner.close()
+
+
+@pytest.mark.parametrize("kind", ["tests/data/hinged_lid.xml", "hinged_box"])
+def test_objects_of_several_bodies_and_joints_run_trials(kind) -> None:
+    env = GraspTrialEnv(kind, cameras=("front",), image_size=64, **EASY)
+    _, info = env.reset(seed=1)
+    lo, hi = info["object_bounds"]
+    assert hi[2] - lo[2] > 0.04  # the lid's geoms count in the object's box
+    _, _, terminated, _, step_info = env.step(
+        top_down_grasp(info["object_pose"], info["object_bounds"])
+    )
+    assert terminated and step_info["error"] == ""
+    env.close()

@@ -19,6 +19,7 @@ pytest.importorskip("robosuite")
 
 from vistask.envs.objects import object_name, object_spec
 from vistask.envs.tabletop import TABLE_TOP_Z, make_scene, object_patches, tabletop_world
+from vistask.vision import Symmetry
 
 MJCF = str(Path(__file__).parent / "data" / "l_block.xml")
 
@@ -34,6 +35,68 @@ def test_objects_resolve_by_preset_class_or_file() -> None:
         object_spec("teapot")
     with pytest.raises(ValueError, match="no MJCF file"):
         object_spec("/nowhere/mug.xml")
+
+
+@pytest.mark.parametrize(
+    ("name", "reason"),
+    [
+        ("CanVisualObject", "only visual geoms"),  # a twin for markers: nothing collides
+        ("door", "no free joint"),  # a fixture in its frame
+        ("plate_with_hole", "no free joint"),
+        ("CompositeObject", "robosuite cannot build it"),  # a base class that needs its parts
+    ],
+)
+def test_objects_that_cannot_stand_on_the_table_are_refused_with_the_reason(name, reason) -> None:
+    with pytest.raises(ValueError, match=reason):
+        object_spec(name)
+
+
+def test_an_mjcf_file_robosuite_cannot_load_is_refused_naming_it(tmp_path) -> None:
+    broken = tmp_path / "broken.xml"
+    broken.write_text(
+        '<mujoco><worldbody><body name="object"><geom type="mesh" mesh="nowhere"/></body>'
+        "</worldbody></mujoco>"
+    )
+    with pytest.raises(ValueError, match=r"broken\.xml: robosuite cannot build it"):
+        object_spec(str(broken))
+
+
+# The symmetries the shapes have, as judged by eye (the rotations that leave each unchanged):
+# the estimate from each model must find them, and no more turn of a shape that has none.
+Z, X = (0.0, 0.0, 1.0), (1.0, 0.0, 0.0)
+JUDGED = {
+    "can": Symmetry.about_axis(Z),
+    "bottle": Symmetry.about_axis(Z),
+    "cylinder": Symmetry.about_axis(Z),
+    "milk": Symmetry.about_axis(Z, order=2),
+    "cereal": Symmetry.box(),
+    "box": Symmetry.box(),
+    "square_nut": Symmetry.about_axis(X, order=2),
+    "round_nut": Symmetry.about_axis(X, order=2),
+    "lemon": Symmetry(Symmetry.about_axis(Z, order=2).rotations, axis=torch.tensor(X)),
+}
+
+
+@pytest.mark.parametrize("name", sorted(JUDGED))
+def test_the_symmetry_estimated_from_the_model_holds_the_one_judged_by_eye(name: str) -> None:
+    from vistask.vision import pose_error
+
+    judged, found = JUDGED[name], object_spec(name).symmetry
+    assert (found.axis is None) == (judged.axis is None)
+    if judged.axis is not None:
+        assert abs(float(found.axis @ judged.axis)) > 0.999
+    # Each rotation judged is one the estimate counts as the same pose.
+    same = torch.cat([torch.zeros(len(judged.rotations), 3), judged.rotations], 1)
+    identity = torch.tensor([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0]).expand_as(same)
+    assert float(pose_error(same, identity, found)[1].max()) < 0.5
+
+
+@pytest.mark.parametrize("name", ["hammer", MJCF, "cone"])
+def test_shapes_without_a_turn_onto_themselves_have_no_finite_symmetry(name) -> None:
+    assert len(object_spec(name).symmetry.rotations) == 1  # the cone spins about z only
+    assert object_spec("bread").symmetry.axis is None
+    assert len(object_spec("bread").symmetry.rotations) == 1  # its crust tells the halves
+    assert len(object_spec("bread").shape_symmetry.rotations) == 2
 
 
 def test_a_lemon_turned_about_its_long_axis_or_end_for_end_is_the_same_pose() -> None:

@@ -137,3 +137,14 @@ def test_cameras_agree_with_robosuite_camera_utils(scene) -> None:
         # Ours puts pixel centres on integers: half a pixel off robosuite's principal point.
         np.testing.assert_allclose(view.camera.K.numpy(), K - [[0, 0, 0.5], [0, 0, 0.5], [0, 0, 0]])
         np.testing.assert_allclose(view.camera.cam_to_world.numpy(), T, atol=1e-9)
+
+
+@pytest.mark.parametrize("kind", ["tests/data/hinged_lid.xml", "hinged_box"])
+def test_objects_of_several_bodies_and_joints_are_arranged_and_segmented_whole(kind) -> None:
+    # A lid on a hinge: its own joint comes before the free joint, and its geoms hang below
+    # the root body. Both must belong to the object.
+    scene = make_scene(2, target=kind, n_distractors=0, cameras=("top",), image_size=SIZE)
+    lo, hi = scene.bounds[0]
+    assert float(hi[2] - lo[2]) > 0.04  # base and lid (or hinged box and its lid) together
+    assert float(scene.poses[0, 2]) > TABLE_TOP_Z  # resting on the table
+    assert (scene.views["top"].segmentation == 0).sum() > 50

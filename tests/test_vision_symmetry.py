@@ -6,7 +6,7 @@ import pytest
 import roma
 import torch
 
-from vistask.vision import Symmetry, pose_error
+from vistask.vision import Symmetry, estimate_symmetry, pose_error
 
 
 def _pose(t, rotvec) -> torch.Tensor:
@@ -62,3 +62,45 @@ def test_bad_input() -> None:
         Symmetry.about_axis(order=0)
     with pytest.raises(ValueError, match="rotations"):
         Symmetry(rotations=torch.zeros(0, 4))
+
+
+def _box_points(half: tuple[float, float, float], n: int = 20_000) -> torch.Tensor:
+    """Points on the faces of a box of half sides ``half`` centred at the origin."""
+    gen = torch.Generator().manual_seed(0)
+    points = (torch.rand(n, 3, generator=gen, dtype=torch.float64) * 2 - 1) * torch.tensor(half)
+    axis = torch.randint(0, 3, (n,), generator=gen)
+    sign = torch.randint(0, 2, (n,), generator=gen) * 2 - 1
+    points[torch.arange(n), axis] = sign * torch.tensor(half, dtype=torch.float64)[axis]
+    return points
+
+
+def _cylinder_points(radius: float, half_height: float, n: int = 20_000) -> torch.Tensor:
+    gen = torch.Generator().manual_seed(1)
+    theta = torch.rand(n, generator=gen, dtype=torch.float64) * 2 * math.pi
+    z = (torch.rand(n, generator=gen, dtype=torch.float64) * 2 - 1) * half_height
+    return torch.stack([radius * theta.cos(), radius * theta.sin(), z], 1)
+
+
+@pytest.mark.parametrize(
+    ("points", "order", "axis"),
+    [
+        (_box_points((0.05, 0.03, 0.02)), 4, None),  # half-turns about each axis
+        (_box_points((0.03, 0.03, 0.03)), 24, None),  # a cube's rotations
+        (_box_points((0.03, 0.03, 0.06)), 8, None),  # a square prism: quarter turns, flips
+        (_cylinder_points(0.03, 0.05), 4, (0.0, 0.0, 1.0)),  # any spin, end for end
+        (_box_points((0.05, 0.03, 0.02)) + torch.tensor([0.01, 0.0, 0.0]), 2, None),  # off x
+    ],
+)
+def test_symmetry_is_estimated_from_points_on_the_shape(points, order, axis) -> None:
+    found = estimate_symmetry(points, tolerance=0.002)
+    assert len(found.rotations) == order
+    if axis is None:
+        assert found.axis is None
+    else:
+        assert torch.allclose(found.axis.abs(), torch.tensor(axis))
+    # Every rotation found turns the shape onto itself: the pose it gives is the same pose.
+    turned = torch.cat([torch.zeros(len(found.rotations), 3), found.rotations], 1)
+    _, error = pose_error(turned, _pose((0, 0, 0), (0.0, 0.0, 0.0)).expand_as(turned), found)
+    assert error.max() < 0.1
+    with pytest.raises(ValueError, match="N >= 100"):
+        estimate_symmetry(points[:50], tolerance=0.002)

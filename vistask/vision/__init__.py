@@ -15,7 +15,7 @@ from vistask.vision.camera import (
     project,
 )
 from vistask.vision.patches import Patches, PatchExtractor
-from vistask.vision.symmetry import Symmetry, pose_error
+from vistask.vision.symmetry import Symmetry, estimate_symmetry, pose_error
 from vistask.vision.views import object_patch_set, object_surface, view_patches
 
 __all__ = [
@@ -26,6 +26,7 @@ __all__ = [
     "Symmetry",
     "backproject",
     "depth_buffer_to_metres",
+    "estimate_symmetry",
     "intrinsics_from_fovy",
     "look_at",
     "object_patch_set",

@@ -10,6 +10,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
+import numpy as np
 import roma
 import torch
 import torch.nn.functional as F
@@ -109,3 +110,102 @@ def pose_error(
         cos = ((R_est @ a) * (R_true @ a)).sum(-1)
         angle = torch.acos(cos.clamp(-1.0, 1.0))
     return t_err, torch.rad2deg(angle.min(dim=-1).values)
+
+
+# Angles that test a continuous symmetry: no n-fold symmetry with n <= 12 maps a shape onto
+# itself at all three.
+CONTINUOUS_TEST_ANGLES = tuple(2 * math.pi * k / 13 for k in (1, 3, 5))
+ORDERS = (8, 6, 5, 4, 3, 2)  # the discrete orders tested about each axis, largest first
+MAX_GROUP = 48  # the finite group's size is bounded: symmetries of a cube are 24
+
+
+@checked
+def estimate_symmetry(points: Tensor, tolerance: float) -> Symmetry:
+    """The rotational symmetry of a shape, found by turning its surface points onto
+    themselves about its frame origin.
+
+    A rotation is a symmetry when the turned points lie within ``tolerance`` of the shape
+    (95% of them: the points are samples). The axes tried are the frame's and the shape's
+    principal axes (about the origin). An axis about which three unrelated angles
+    (``CONTINUOUS_TEST_ANGLES``) are symmetries is continuous; about any other, the largest
+    order of ``ORDERS`` is kept. The finite group is closed under composition; with a
+    continuous axis it keeps the half-turns that flip that axis.
+
+    Example:
+        >>> estimate_symmetry(points_on_a_can, tolerance=0.002).axis
+        tensor([0., 0., 1.])
+
+    Args:
+        points: (N, 3) points on the shape's surface, in its frame (N >= 100).
+        tolerance: how far, in the points' unit, a turned point may lie from the shape.
+
+    Returns:
+        the ``Symmetry`` (one continuous axis at most: a sphere is taken as symmetric about
+        one axis and the half-turns across it).
+    """
+    from scipy.spatial import cKDTree
+
+    if points.dim() != 2 or points.shape[1] != 3 or len(points) < 100:
+        raise ValueError(f"points must have shape (N >= 100, 3), got {tuple(points.shape)}")
+    if not tolerance > 0:
+        raise ValueError(f"tolerance must be > 0, got {tolerance}")
+    p = points.double()
+    tree = cKDTree(p.numpy())
+    sample = p[torch.randperm(len(p), generator=torch.Generator().manual_seed(0))[:2000]]
+
+    def holds(rotvec: Tensor) -> bool:
+        distances, _ = tree.query((sample @ roma.rotvec_to_rotmat(rotvec).T).numpy())
+        return bool(np.quantile(distances, 0.95) <= tolerance)
+
+    axes = _candidate_axes(p)
+    continuous = next(
+        (a for a in axes if all(holds(angle * a) for angle in CONTINUOUS_TEST_ANGLES)), None
+    )
+    generators = []
+    for a in axes:
+        if continuous is not None:
+            if abs(float(a @ continuous)) < 1e-6 and holds(math.pi * a):
+                generators.append(math.pi * a)  # a flip of the continuous axis
+            continue
+        order = next((n for n in ORDERS if holds(2 * math.pi / n * a)), None)
+        if order is not None:
+            generators.append(2 * math.pi / order * a)
+    # Compositions of near-symmetries drift: each member of the group must hold itself.
+    group = _closure([roma.rotvec_to_unitquat(g) for g in generators])
+    rotations = torch.stack([q for q in group if holds(roma.unitquat_to_rotvec(q))])
+    axis = None if continuous is None else continuous.float()
+    return Symmetry(rotations=rotations.float(), axis=axis)
+
+
+def _candidate_axes(points: Tensor) -> list[Tensor]:
+    """The frame's axes and the principal axes of ``points`` about the origin, those within
+    about 8 degrees of an earlier one left out."""
+    _, vectors = torch.linalg.eigh(points.T @ points)
+    axes: list[Tensor] = []
+    for a in [*torch.eye(3, dtype=points.dtype), *vectors.T]:
+        if all(abs(float(a @ b)) < 0.99 for b in axes):
+            axes.append(a / a.norm())
+    return axes
+
+
+def _closure(generators: list[Tensor]) -> Tensor:
+    """(K, 4) the finite group the XYZW quaternions ``generators`` make, identity first."""
+    group = [_IDENTITY[0].double()]
+
+    def known(q: Tensor) -> bool:
+        return any(abs(float(q @ g)) > 1 - 1e-6 for g in group)
+
+    frontier = [g for g in generators if not known(g)]
+    for g in frontier:
+        if not known(g):
+            group.append(g)
+    while frontier and len(group) < MAX_GROUP:
+        new = []
+        for a in frontier:
+            for b in list(group):
+                q = roma.quat_product(a, b)
+                if not known(q) and len(group) < MAX_GROUP:
+                    group.append(q)
+                    new.append(q)
+        frontier = new
+    return torch.stack(group)
