@@ -16,6 +16,8 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from vistask.envs.scene import geom_to_body, subtree_geoms
+
 # A turned point may lie this share of the object's largest extent from its surface (at least
 # SHAPE_TOLERANCE_MIN): a lemon's 40 x 43 mm section turned about its long axis moves its
 # outline 1.5 mm at most, the bottle's six-sided body 3.4 mm over its 160 mm.
@@ -43,7 +45,7 @@ def surface_points(obj, n: int = POINTS, seed: int = 0) -> Tensor:
     visual geoms, else its collision geoms; every body below its root), in its root body's
     frame, spread by area."""
     model, data, root = compile_alone(obj)
-    own = np.nonzero(model.body_rootid[model.geom_bodyid] == root)[0]
+    own = subtree_geoms(model, root)
     # robosuite's visual geoms (group 1) show the shape; collision geoms (group 0) are often
     # coarse hulls (the bottle's is six-sided).
     visual = own[model.geom_group[own] == 1]
@@ -53,12 +55,10 @@ def surface_points(obj, n: int = POINTS, seed: int = 0) -> Tensor:
     rng = np.random.default_rng(seed)
     areas = np.array([_area(model, g) for g in geoms])
     counts = rng.multinomial(n, areas / areas.sum())
-    R_b, t_b = data.xmat[root].reshape(3, 3), data.xpos[root]
-    parts = []
-    for g, count in zip(geoms, counts, strict=True):
-        local = _sample(model, g, count, rng)
-        world = local @ data.geom_xmat[g].reshape(3, 3).T + data.geom_xpos[g]
-        parts.append((world - t_b) @ R_b)
+    parts = [
+        geom_to_body(data, g, root, _sample(model, g, count, rng))
+        for g, count in zip(geoms, counts, strict=True)
+    ]
     return torch.from_numpy(np.concatenate(parts))
 
 
@@ -69,32 +69,45 @@ def shape_tolerance(points: Tensor) -> float:
     return max(SHAPE_TOLERANCE * extent, SHAPE_TOLERANCE_MIN)
 
 
-def _mesh(model: mujoco.MjModel, geom: int) -> tuple[np.ndarray, np.ndarray]:
-    """The vertices (V, 3) and faces (T, 3) of a mesh geom, in the geom's frame."""
+def _triangles(model: mujoco.MjModel, geom: int) -> tuple[np.ndarray, ...]:
+    """The corners a, b, c (T, 3) of a mesh geom's triangles in the geom's frame, and the
+    triangles' areas (T,)."""
     mesh = model.geom_dataid[geom]
     start, count = model.mesh_vertadr[mesh], model.mesh_vertnum[mesh]
     first, faces = model.mesh_faceadr[mesh], model.mesh_facenum[mesh]
-    return model.mesh_vert[start : start + count], model.mesh_face[first : first + faces]
+    vertices = model.mesh_vert[start : start + count]
+    a, b, c = (vertices[model.mesh_face[first : first + faces, i]] for i in range(3))
+    return a, b, c, np.linalg.norm(np.cross(b - a, c - a), axis=1) / 2
+
+
+def _radii(model: mujoco.MjModel, geom: int) -> np.ndarray:
+    """(3,) semi-axes of a sphere or ellipsoid geom."""
+    size = model.geom_size[geom]
+    return np.repeat(size[0], 3) if model.geom_type[geom] == mujoco.mjtGeom.mjGEOM_SPHERE else size
+
+
+def _box_faces(model: mujoco.MjModel, geom: int) -> np.ndarray:
+    """(3,) areas of the quarter faces of a geom's bounding box, across x, y and z."""
+    half = model.geom_aabb[geom, 3:]
+    return np.array([half[1] * half[2], half[0] * half[2], half[0] * half[1]])
+
+
+ROUND = (mujoco.mjtGeom.mjGEOM_SPHERE, mujoco.mjtGeom.mjGEOM_ELLIPSOID)
+TUBES = (mujoco.mjtGeom.mjGEOM_CYLINDER, mujoco.mjtGeom.mjGEOM_CAPSULE)
 
 
 def _area(model: mujoco.MjModel, geom: int) -> float:
-    """Surface area of a geom (of its bounding box where the shape is not handled below)."""
+    """Surface area of a geom (ellipsoids as spheres of their mean semi-axis; any shape not
+    handled here by its bounding box)."""
     kind, size = model.geom_type[geom], model.geom_size[geom]
     if kind == mujoco.mjtGeom.mjGEOM_MESH:
-        vertices, faces = _mesh(model, geom)
-        a, b, c = (vertices[faces[:, i]] for i in range(3))
-        return float(np.linalg.norm(np.cross(b - a, c - a), axis=1).sum() / 2)
-    if kind in (mujoco.mjtGeom.mjGEOM_SPHERE, mujoco.mjtGeom.mjGEOM_ELLIPSOID):
-        return (
-            4
-            * math.pi
-            * float(np.mean(size[:3] if kind != mujoco.mjtGeom.mjGEOM_SPHERE else size[:1])) ** 2
-        )
-    if kind in (mujoco.mjtGeom.mjGEOM_CYLINDER, mujoco.mjtGeom.mjGEOM_CAPSULE):
+        return float(_triangles(model, geom)[3].sum())
+    if kind in ROUND:
+        return 4 * math.pi * float(_radii(model, geom).mean()) ** 2
+    if kind in TUBES:
         r, h = size[0], size[1]
         return float(2 * math.pi * r * 2 * h + 4 * math.pi * r * r)
-    half = model.geom_aabb[geom, 3:]  # boxes, and any other shape by its box
-    return float(8 * (half[0] * half[1] + half[1] * half[2] + half[0] * half[2]))
+    return float(8 * _box_faces(model, geom).sum())
 
 
 def _sample(model: mujoco.MjModel, geom: int, n: int, rng: np.random.Generator) -> np.ndarray:
@@ -102,19 +115,16 @@ def _sample(model: mujoco.MjModel, geom: int, n: int, rng: np.random.Generator) 
     cylinders and capsules by their parametrisation; other shapes on their bounding box)."""
     kind, size = model.geom_type[geom], model.geom_size[geom]
     if kind == mujoco.mjtGeom.mjGEOM_MESH:
-        vertices, faces = _mesh(model, geom)
-        a, b, c = (vertices[faces[:, i]] for i in range(3))
-        area = np.linalg.norm(np.cross(b - a, c - a), axis=1)
-        pick = rng.choice(len(faces), n, p=area / area.sum())
+        a, b, c, area = _triangles(model, geom)
+        pick = rng.choice(len(area), n, p=area / area.sum())
         u, v = rng.uniform(size=(2, n, 1))
         flip = (u + v) > 1
         u, v = np.where(flip, 1 - u, u), np.where(flip, 1 - v, v)
         return a[pick] + u * (b[pick] - a[pick]) + v * (c[pick] - a[pick])
-    if kind in (mujoco.mjtGeom.mjGEOM_SPHERE, mujoco.mjtGeom.mjGEOM_ELLIPSOID):
-        radii = np.repeat(size[0], 3) if kind == mujoco.mjtGeom.mjGEOM_SPHERE else size[:3]
+    if kind in ROUND:
         d = rng.normal(size=(n, 3))
-        return d / np.linalg.norm(d, axis=1, keepdims=True) * radii
-    if kind in (mujoco.mjtGeom.mjGEOM_CYLINDER, mujoco.mjtGeom.mjGEOM_CAPSULE):
+        return d / np.linalg.norm(d, axis=1, keepdims=True) * _radii(model, geom)
+    if kind in TUBES:
         r, h = size[0], size[1]
         side = rng.uniform(size=n) < (2 * h) / (2 * h + 2 * r)  # the rest on caps or domes
         theta = rng.uniform(0, 2 * math.pi, n)
@@ -127,14 +137,9 @@ def _sample(model: mujoco.MjModel, geom: int, n: int, rng: np.random.Generator) 
             return np.where(side[:, None], ring, dome)
         rho = np.where(side, r, r * np.sqrt(rng.uniform(size=n)))
         return np.stack([rho * np.cos(theta), rho * np.sin(theta), z], 1)
-    half = model.geom_aabb[geom, 3:]  # boxes, and any other shape by its box
-    centre = model.geom_aabb[geom, :3]
-    face = rng.choice(
-        6,
-        n,
-        p=np.tile([half[1] * half[2], half[0] * half[2], half[0] * half[1]], 2)
-        / (2 * (half[1] * half[2] + half[0] * half[2] + half[0] * half[1])),
-    )
+    half, centre = model.geom_aabb[geom, 3:], model.geom_aabb[geom, :3]
+    faces = _box_faces(model, geom)
+    face = rng.choice(6, n, p=np.tile(faces, 2) / (2 * faces.sum()))
     points = rng.uniform(-half, half, (n, 3))
     axis, sign = face % 3, np.where(face < 3, -1.0, 1.0)
     points[np.arange(n), axis] = sign * half[axis]

@@ -93,11 +93,15 @@ _SHAPES: dict[str, Symmetry] = {}  # estimated shape symmetries, by class name o
 def shape_symmetry(label: str, make: Callable[[str], object]) -> Symmetry:
     """The rotational symmetry of the shape of the object ``make`` builds, estimated from its
     model (``estimate_symmetry`` on its surface points) once per process for each ``label``;
-    textures are not seen."""
+    textures are not seen.
+
+    Raises:
+        ValueError: the object cannot stand on the table (``_buildable``), named by ``label``.
+    """
     if label not in _SHAPES:
         from vistask.envs.object_shape import shape_tolerance, surface_points
 
-        points = surface_points(make("probe"))
+        points = surface_points(_buildable(label, make))
         _SHAPES[label] = estimate_symmetry(points, shape_tolerance(points))
     return _SHAPES[label]
 
@@ -180,13 +184,12 @@ def _mjcf_spec(path: Path) -> ObjectSpec:
             fname, instance, joints=[{"type": "free", "damping": "0.0005"}], obj_type="all"
         )
 
-    _check_buildable(str(path), make)
     return ObjectSpec(name, make, shape_symmetry(fname, make))
 
 
-def _check_buildable(label: str, make: Callable[[str], object]) -> None:
-    """Build the object once; raise ValueError naming ``label`` and why it cannot stand on
-    the table: robosuite cannot build it from a name alone (a base class), it has no
+def _buildable(label: str, make: Callable[[str], object]) -> object:
+    """The object ``make`` builds; raise ValueError naming ``label`` and why it cannot stand
+    on the table: robosuite cannot build it from a name alone (a base class), it has no
     collision geoms (a visual-only twin) or no free joint (a fixture such as a door)."""
     try:
         obj = make("probe")
@@ -200,6 +203,7 @@ def _check_buildable(label: str, make: Callable[[str], object]) -> None:
             f"{label} has no free joint (a fixture, such as a door in its frame): it cannot "
             "be placed on the table"
         )
+    return obj
 
 
 def object_spec(name: str | Path | ObjectSpec) -> ObjectSpec:
@@ -227,7 +231,6 @@ def object_spec(name: str | Path | ObjectSpec) -> ObjectSpec:
             "class (e.g. 'can', 'LemonObject') or an MJCF file ending in .xml"
         )
     make = _fixed(classes[cls_name])
-    _check_buildable(cls_name, make)
     shape = shape_symmetry(cls_name, make)
     sym = Symmetry.none() if cls_name in _TEXTURED else shape
     snake = re.sub(r"(?<!^)(?=[A-Z])", "_", cls_name.removesuffix("Object")).lower()

@@ -174,15 +174,20 @@ def body_bounds(
     """(2, 3) axis-aligned box (min corner, max corner) of ``geoms`` in the frame of ``body``,
     from MuJoCo's geom AABBs at the current state."""
     mujoco.mj_forward(model, data)
-    R_b, t_b = data.xmat[body].reshape(3, 3), data.xpos[body]
     corners = np.array(np.meshgrid([-1, 1], [-1, 1], [-1, 1], indexing="ij")).reshape(3, -1).T
     points = []
     for g in geoms:
         local = model.geom_aabb[g, :3] + corners * model.geom_aabb[g, 3:]  # geom frame
-        world = local @ data.geom_xmat[g].reshape(3, 3).T + data.geom_xpos[g]
-        points.append((world - t_b) @ R_b)
+        points.append(geom_to_body(data, g, body, local))
     pts = np.concatenate(points)
     return np.stack([pts.min(0), pts.max(0)])
+
+
+def geom_to_body(data: mujoco.MjData, geom: int, body: int, points: np.ndarray) -> np.ndarray:
+    """(N, 3) ``points`` given in the frame of ``geom``, in the frame of ``body``, at the
+    state of ``data`` (after ``mj_forward``)."""
+    world = points @ data.geom_xmat[geom].reshape(3, 3).T + data.geom_xpos[geom]
+    return (world - data.xpos[body]) @ data.xmat[body].reshape(3, 3)
 
 
 def subtree_geoms(model: mujoco.MjModel, body: int) -> np.ndarray:

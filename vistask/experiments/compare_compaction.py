@@ -174,9 +174,9 @@ def compare_compaction(
         interactions: interactions per run.
         compact_every, tolerance: the BDD agent's ``Compaction(every=, tolerance=)``.
         max_stages: both agents' stage cap (``RLVCAgent``'s ``max_stages``; default: the
-            env's hyperparameters').
+            env's hyperparameters).
         contrast_threshold: both agents' SIFT detection threshold (default: the env's
-            hyperparameters').
+            hyperparameters).
         out: output folder (default ``runs/compare_compaction-<time>``); an existing one
             with the same settings is resumed.
         progress: show progress bars.

@@ -195,10 +195,11 @@ def _closure(generators: list[Tensor]) -> Tensor:
     def known(q: Tensor) -> bool:
         return any(abs(float(q @ g)) > 1 - 1e-6 for g in group)
 
-    frontier = [g for g in generators if not known(g)]
-    for g in frontier:
+    frontier = []
+    for g in generators:
         if not known(g):
             group.append(g)
+            frontier.append(g)
     while frontier and len(group) < MAX_GROUP:
         new = []
         for a in frontier:
