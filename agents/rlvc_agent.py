@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import math
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -13,7 +16,7 @@ from vistask.agents.visual_agent import VisualAgent
 from vistask.checks import check_at_least, check_bools, check_integers, checked
 from vistask.features.vocabulary import VOCABULARY_GROUPS
 from vistask.parallel import check_not_importing_main
-from vistask.rlvc import RLVC, VisualClassifier
+from vistask.rlvc import RLVC, VisualClassifier, novelty_bonus
 
 
 @checked
@@ -57,10 +60,14 @@ class RLVCAgent(VisualAgent):
 
     ``learn(total_timesteps)`` collects ``databases`` equal databases of interactions, the
     first with uniformly random actions, each later one epsilon-greedily on the classes
-    learned so far, each added to the earlier ones. After each database, RLVC stages run until
-    no class splits (or ``max_stages``): classes are split where the presence of a visual
-    feature (a word of a SIFT vocabulary fitted on the first database) reduces the variance of
-    the TD errors significantly. A second ``learn`` call continues from what was learned.
+    learned so far, each added to the earlier ones. While the rewards met are too few for a
+    split (``min_count``), the classes that collect a database learn on the env's rewards
+    plus a bonus for reaching percepts rarely met (``novelty``), so that the collection
+    explores where the agent knows least; the classes that act learn on the env's rewards.
+    After each database, RLVC stages run until no class splits (or ``max_stages``): classes
+    are split where the presence of a visual feature (a word of a SIFT vocabulary fitted on
+    the first database) reduces the variance of the TD errors significantly. A second
+    ``learn`` call continues from what was learned.
 
     Episodes end where the env ends them (terminal states, its time limit). An env whose
     percepts show views side by side gives their widths in a ``panel_widths`` attribute: SIFT
@@ -104,6 +111,10 @@ class RLVCAgent(VisualAgent):
         vocabulary_groups: coarse groups of the vocabulary tree; a word's group is its part
             in compound features, so fewer groups make coarser parts (>= 1, default 64; at
             most n_words are used).
+        novelty: weight of the novelty bonus that the classes collecting the next database
+            learn on while fewer than ``min_count`` interactions were rewarded, a share of
+            the largest reward met (1 before any) (>= 0, default 0.01; 0: epsilon-greedy on
+            the env's rewards only).
         gamma: discount in [0, 1) (default: the env's ``gamma`` attribute, else 0.99).
         tensorboard_log: folder of TensorBoard runs (None, the default: no logging).
         seed: seeds the episodes, the exploration and the vocabulary (default 0).
@@ -127,6 +138,7 @@ class RLVCAgent(VisualAgent):
         compaction: bool | Compaction = False,
         nearest_seen: bool = False,
         vocabulary_groups: int = VOCABULARY_GROUPS,
+        novelty: float = 0.01,
         gamma: float | None = None,
         tensorboard_log: str | Path | None = None,
         seed: int = 0,
@@ -165,6 +177,11 @@ class RLVCAgent(VisualAgent):
         check_integers(vocabulary_groups=vocabulary_groups)
         check_at_least(1, vocabulary_groups=vocabulary_groups)
         self.vocabulary_groups = int(vocabulary_groups)
+        if isinstance(novelty, bool) or not isinstance(novelty, int | float):
+            raise TypeError(f"novelty must be a number, got {novelty!r}")
+        if not 0 <= novelty < math.inf:
+            raise ValueError(f"novelty must be finite and >= 0, got {novelty!r}")
+        self.novelty = float(novelty)
 
     @property
     def structures(self) -> int:
@@ -199,6 +216,26 @@ class RLVCAgent(VisualAgent):
         explore = rng.random(len(greedy)) < self.epsilon
         return np.where(explore, rng.integers(self.rlvc.n_actions, size=len(greedy)), greedy)
 
+    @contextmanager
+    def _exploring(self, to_collect: int) -> Iterator[None]:
+        """While the database holds fewer rewarded interactions than a split needs on one side
+        (``min_count``), the classes that collect the next database learn on the env's
+        rewards plus the novelty bonus of each interaction's successor (``novelty_bonus``),
+        scaled by ``novelty`` and the largest reward met (1 before any): the collection heads
+        for percepts rarely met. Otherwise, and for the classes that act when learning ends,
+        the env's rewards alone."""
+        db = self.database
+        if not self.novelty or to_collect == 0 or self.rewards_seen >= self.min_count:
+            yield
+            return
+        rewards = db.rewards
+        scale = self.novelty * (float(rewards.abs().max()) or 1.0)
+        db.rewards = rewards + scale * novelty_bonus(db.presence, db.next_obs, seed=self.seed)
+        try:
+            yield
+        finally:
+            db.rewards = rewards
+
     def _end_databases(self) -> None:
         if self.structures > 1:
             self.rlvc.fuse(self.database, self.structures, self.seed)
@@ -213,13 +250,15 @@ class RLVCAgent(VisualAgent):
             "compaction": None if self.compaction is None else asdict(self.compaction),
             "nearest_seen": self.nearest_seen,
             "vocabulary_groups": self.vocabulary_groups,
+            "novelty": self.novelty,
         }
 
     @classmethod
     def _params_from_state(cls, params: dict) -> dict:
         """Saved settings as constructor arguments; files that kept compaction's settings
-        beside a bool give them as a ``Compaction``."""
-        params = dict(params)
+        beside a bool give them as a ``Compaction``; files without ``novelty`` learned
+        without it."""
+        params = {"novelty": 0.0, **params}
         legacy = {
             k: params.pop(k)
             for k in ("compact_every", "compaction_tolerance", "structures")

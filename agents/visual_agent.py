@@ -5,6 +5,8 @@ callbacks and TensorBoard, ``predict`` on one image or a batch, ``save`` and ``l
 from __future__ import annotations
 
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, ClassVar
 
@@ -159,6 +161,12 @@ class VisualAgent(SB3Model):
     def _end_databases(self) -> None:
         """Called once the stages of a ``learn`` call's last database have run."""
 
+    @contextmanager
+    def _exploring(self, to_collect: int) -> Iterator[None]:
+        """The database's rewards while the learner learns, with ``to_collect`` databases of
+        the call still to collect on its classes: the env's by default."""
+        yield
+
     @classmethod
     def _params_from_state(cls, params: dict) -> dict:
         """The constructor arguments of a saved file's settings."""
@@ -258,7 +266,8 @@ class VisualAgent(SB3Model):
                     progress.show(stage=record.stage, classes=record.classes)
                     return not stopped
 
-                self.learner.learn(self.database, self.max_stages, False, on_stage)
+                with self._exploring(to_collect=len(sizes) - database):
+                    self.learner.learn(self.database, self.max_stages, False, on_stage)
                 if stopped:
                     break
                 if checkpoint is not None and database < len(sizes):

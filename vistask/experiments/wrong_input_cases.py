@@ -104,6 +104,7 @@ def _agent_cases() -> Iterator[Case]:
         "max_keypoints": (-1,),
         "contrast_threshold": (0.0, -1.0, math.inf),
         "vocabulary_groups": (0, -3),
+        "novelty": (-0.1, math.nan, math.inf),
         "gamma": (1.0, -0.5, 2.0),
         "seed": (-1,),
     }.items():

@@ -1,7 +1,7 @@
 """RLVC: reinforcement learning of visual classes (interaction database and its presence bits,
-class tree or BDD, Q solver, split search, compaction, learner, new percepts by the nearest
-learned ones, fused structures acting as a committee), and RLJC: joint classes of percepts and
-continuous actions (joint tree, learner)."""
+class tree or BDD, Q solver, split search, compaction, learner, novelty of percepts for
+directed exploration, new percepts by the nearest learned ones, fused structures acting as a
+committee), and RLJC: joint classes of percepts and continuous actions (joint tree, learner)."""
 
 from vistask.rlvc.bdd import ClassBDD
 from vistask.rlvc.classifier import JointClassifier, VisualClassifier
@@ -18,6 +18,7 @@ from vistask.rlvc.database import (
 )
 from vistask.rlvc.joint_tree import JointTree
 from vistask.rlvc.learner import RLVC, StageRecord
+from vistask.rlvc.novelty import novelty_bonus, simhash_codes
 from vistask.rlvc.presence import PackedPresence
 from vistask.rlvc.rljc import RLJC, joint_values
 from vistask.rlvc.seen import SeenPercepts
@@ -52,7 +53,9 @@ __all__ = [
     "interchangeable",
     "joint_values",
     "merge_groups",
+    "novelty_bonus",
     "random_policy",
+    "simhash_codes",
     "state_values",
     "td_errors",
     "value_iteration",

@@ -1,0 +1,58 @@
+"""The MiniGrid benchmark: frames, scoring, runs, resuming and the summary's layout."""
+
+import json
+
+import numpy as np
+import pytest
+
+pytest.importorskip("minigrid")
+
+from vistask.experiments.gridworlds import (
+    EPISODES,
+    bench_gridworlds,
+    grid_runs,
+    make_gridworld,
+    success_rate,
+)
+
+ENV = "MiniGrid-Empty-5x5-v0"
+
+
+def test_gridworld_frames_are_64_pixel_rgb_images_of_the_whole_grid():
+    env = make_gridworld(ENV)
+    obs, _ = env.reset(seed=0)
+    assert obs.shape == (64, 64, 3) and obs.dtype == np.uint8
+    assert env.action_space.n == 7
+
+
+def test_success_counts_the_episodes_that_reach_the_goal():
+    def never(observations):
+        return np.zeros(len(observations), dtype=np.int64)  # turn left forever
+
+    assert success_rate(never, ENV, episodes=5) == 0.0
+    rng = np.random.default_rng(0)
+    assert 0 < success_rate(lambda x: rng.integers(3, size=len(x)), ENV, episodes=20) <= 1
+
+
+def test_rlvc_learns_one_agent_per_budget_and_the_others_train_once():
+    runs = grid_runs([ENV], ["rlvc", "ppo", "random"], [0, 1], [1000, 2000])
+    assert sum(r.method == "rlvc" for r in runs) == 4
+    assert {r.budgets for r in runs if r.method != "rlvc"} == {(1000, 2000)}
+    assert runs[-1].method == "random"  # the short runs last
+
+
+def test_the_benchmark_writes_its_summary_and_resumes_what_is_missing(tmp_path, capsys):
+    out = tmp_path / "bench"
+    summary = bench_gridworlds([ENV], ["random", "ppo"], [0], [1024], out, workers=1)
+    entry = summary[ENV]["random"]
+    assert set(entry) == {"success", "interval", "to_reach", "per_seed"}
+    assert 0 <= entry["success"]["1024"] <= 1 and "1024" in summary[ENV]["ppo"]["success"]
+    assert summary["episodes"] == EPISODES and summary["failed"] == []
+    assert (out / "success.png").stat().st_size > 0
+    assert json.loads((out / "summary.json").read_text())[ENV]["random"] == entry
+    capsys.readouterr()
+    again = bench_gridworlds([ENV], ["random", "ppo"], [0], [1024], out, workers=1)
+    assert again[ENV] == summary[ENV]
+    assert "seed 0" not in capsys.readouterr().out  # nothing ran again
+    with pytest.raises(ValueError, match="unknown methods"):
+        bench_gridworlds([ENV], ["dqn"], [0], [1024], out, workers=1)

@@ -1,0 +1,311 @@
+"""RLVC against SB3 PPO and random actions on public MiniGrid tasks seen as full RGB frames:
+greedy success at equal interactions, over seeds (``scripts/bench_gridworlds.py``)."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+
+from vistask.checks import check_at_least
+from vistask.experiments.statistics import iqm_curves
+from vistask.parallel import Outcome, map_runs
+from vistask.runs import (
+    append_record,
+    check_same_settings,
+    print_table,
+    read_records,
+    run_dir,
+    write_summary,
+)
+
+GRIDWORLDS = (
+    "MiniGrid-Empty-8x8-v0",
+    "MiniGrid-DoorKey-5x5-v0",
+    "MiniGrid-Unlock-v0",
+    "MiniGrid-LavaGapS5-v0",
+    "MiniGrid-SimpleCrossingS9N1-v0",
+    "MiniGrid-MultiRoom-N2-S4-v0",
+    "MiniGrid-KeyCorridorS3R1-v0",
+)
+METHODS = ("rlvc", "ppo", "random")
+BUDGETS = (10_000, 25_000, 50_000, 100_000)
+FRAME = 64  # pixels of a side of the frames every method sees
+EPISODES = 100  # greedy episodes a policy is scored on
+EVAL_SEED = 1_000_000  # their reset seeds start here, apart from any training episode's
+SUCCESS = 0.9  # the success that "interactions to reach" counts to
+# rl-zoo3's ppo.yml entry for MiniGrid (MiniGrid-Empty-Random-5x5-v0 and the tasks that share
+# it), here with CnnPolicy on the frames: its VecNormalize is left out, since CnnPolicy
+# scales the pixels itself and MiniGrid's rewards lie in [0, 1].
+PPO_MINIGRID = {
+    "n_steps": 128,
+    "batch_size": 64,
+    "gae_lambda": 0.95,
+    "gamma": 0.99,
+    "n_epochs": 10,
+    "ent_coef": 0.0,
+    "learning_rate": 2.5e-4,
+    "clip_range": 0.2,
+}
+PPO_ENVS = 8
+
+Policy = Callable[[np.ndarray], np.ndarray]  # (B, H, W, 3) frames -> (B,) actions
+
+
+def make_gridworld(env_id: str, frame: int = FRAME) -> gym.Env:
+    """MiniGrid ``env_id`` whose observations are its full RGB frame resized to ``frame`` x
+    ``frame`` pixels (``RGBImgObsWrapper``, ``ImgObsWrapper``, ``ResizeObservation``), with
+    the env's own episode length.
+
+    Example:
+        >>> agent = RLVCAgent(make_gridworld("MiniGrid-DoorKey-5x5-v0")).learn(50_000)
+    """
+    import minigrid  # noqa: F401  (registers the MiniGrid ids)
+    from minigrid.wrappers import ImgObsWrapper, RGBImgObsWrapper
+
+    env = ImgObsWrapper(RGBImgObsWrapper(gym.make(env_id)))
+    return gym.wrappers.ResizeObservation(env, (frame, frame))
+
+
+def success_rate(
+    policy: Policy, env_id: str, episodes: int = EPISODES, seed: int = EVAL_SEED
+) -> float:
+    """Share of ``episodes`` episodes (reset seeds ``seed + i``) that ``policy`` ends with a
+    reward: every MiniGrid task rewards reaching its goal only."""
+    envs = [make_gridworld(env_id) for _ in range(episodes)]
+    observations = np.stack([e.reset(seed=seed + i)[0] for i, e in enumerate(envs)])
+    running = np.ones(episodes, dtype=bool)
+    rewarded = np.zeros(episodes, dtype=bool)
+    while running.any():
+        live = np.flatnonzero(running)
+        for i, action in zip(live, policy(observations[live]), strict=True):
+            observations[i], reward, terminated, truncated, _ = envs[i].step(action)
+            rewarded[i] |= reward > 0
+            running[i] = not (terminated or truncated)
+    return float(rewarded.mean())
+
+
+@dataclass(frozen=True)
+class GridRun:
+    """One run: ``method`` with ``seed`` on ``env_id``, scored at ``budgets`` (RLVC learns
+    afresh for each budget, one budget a run; PPO trains once past all of them)."""
+
+    env_id: str
+    method: str
+    seed: int
+    budgets: tuple[int, ...]
+
+
+def grid_runs(
+    envs: Sequence[str], methods: Sequence[str], seeds: Sequence[int], budgets: Sequence[int]
+) -> list[GridRun]:
+    """Every run of the benchmark, the longest first."""
+    runs = []
+    for env_id in envs:
+        for method in methods:
+            for seed in seeds:
+                if method == "rlvc":
+                    runs += [GridRun(env_id, method, seed, (b,)) for b in budgets]
+                else:
+                    runs.append(GridRun(env_id, method, seed, tuple(budgets)))
+    return sorted(runs, key=lambda r: (r.method == "random", -max(r.budgets) * len(r.budgets)))
+
+
+def run_grid(run: GridRun) -> dict:
+    """Train and score one run; returns its record: success, seconds and (RLVC) classes and
+    rewards seen, one entry per budget."""
+    start = time.perf_counter()
+    record = {**asdict(run), "success": [], "seconds": []}
+    if run.method == "rlvc":
+        from vistask.agents import RLVCAgent
+
+        (budget,) = run.budgets
+        agent = RLVCAgent(make_gridworld(run.env_id), seed=run.seed)
+        agent.learn(budget)
+        seconds = time.perf_counter() - start
+        record["success"].append(success_rate(lambda x: agent.predict(x)[0], run.env_id))
+        record |= {"seconds": [seconds], "classes": [agent.rlvc.n_classes]}
+        record["rewards_seen"] = [agent.rewards_seen]
+    elif run.method == "ppo":
+        record |= _run_ppo(run, start)
+    else:
+        rng = np.random.default_rng(run.seed)
+        n = int(make_gridworld(run.env_id).action_space.n)
+        score = success_rate(lambda x: rng.integers(n, size=len(x)), run.env_id)
+        record |= {"success": [score] * len(run.budgets), "seconds": [0.0] * len(run.budgets)}
+    return record
+
+
+def _run_ppo(run: GridRun, start: float) -> dict:
+    """SB3 PPO (CnnPolicy, ``PPO_MINIGRID``) trained once, scored when it passes each budget."""
+    from stable_baselines3 import PPO
+    from stable_baselines3.common.callbacks import BaseCallback
+    from stable_baselines3.common.env_util import make_vec_env
+
+    success, seconds, scoring = [], [], [0.0]
+
+    class ScoreAtBudgets(BaseCallback):
+        def _on_step(self) -> bool:
+            while (
+                len(success) < len(run.budgets) and self.num_timesteps >= run.budgets[len(success)]
+            ):
+                t0 = time.perf_counter()
+                seconds.append(t0 - start - scoring[0])
+                policy = lambda x: self.model.predict(x, deterministic=True)[0]  # noqa: E731
+                success.append(success_rate(policy, run.env_id))
+                scoring[0] += time.perf_counter() - t0
+            return len(success) < len(run.budgets)
+
+    envs = make_vec_env(lambda: make_gridworld(run.env_id), n_envs=PPO_ENVS, seed=run.seed)
+    model = PPO("CnnPolicy", envs, seed=run.seed, verbose=0, **PPO_MINIGRID)
+    model.learn(max(run.budgets), callback=ScoreAtBudgets())
+    return {"success": success, "seconds": seconds}
+
+
+def bench_gridworlds(
+    envs: Sequence[str] = GRIDWORLDS,
+    methods: Sequence[str] = METHODS,
+    seeds: Sequence[int] = range(5),
+    budgets: Sequence[int] = BUDGETS,
+    out: str | Path | None = None,
+    workers: int | None = None,
+    address: str | None = None,
+    progress: bool = True,
+) -> dict:
+    """Run every (env, method, seed) and write ``runs.jsonl``, ``summary.json``, the table and
+    ``success.png`` to ``out``; the same ``out`` again runs only what is missing.
+
+    Args:
+        envs: MiniGrid env ids (``make_gridworld``).
+        methods: of ``METHODS``.
+        seeds: seeds of every method.
+        budgets: increasing interaction budgets.
+        out: run folder (default ``runs/bench_gridworlds-<time>``).
+        workers, address: where the runs go (``vistask.parallel.map_runs``).
+        progress: print a line per finished run.
+
+    Returns:
+        The summary: ``summary[env][method]["success"][str(budget)]`` the IQM success over
+        seeds, ``["to_reach"]`` the smallest budget whose IQM reaches ``SUCCESS`` (None:
+        none), ``summary["failed"]`` the runs that raised.
+    """
+    unknown = sorted(set(methods) - set(METHODS))
+    if unknown:
+        raise ValueError(f"unknown methods {unknown}: choose from {list(METHODS)}")
+    budgets, seeds = sorted(set(budgets)), sorted(set(seeds))
+    check_at_least(1, budgets=min(budgets))
+    out = run_dir("bench_gridworlds", out)
+    check_same_settings(out / "settings.json", {"frame": FRAME, "episodes": EPISODES})
+    done = {_key(r) for r in read_records(out / "runs.jsonl")}
+    todo = [r for r in grid_runs(envs, methods, seeds, budgets) if _key(asdict(r)) not in done]
+    failed = []
+
+    def finished(outcome: Outcome) -> None:
+        run = outcome.item
+        if not outcome.ok:
+            failed.append({**asdict(run), "error": outcome.error})
+            line = f"FAILED: {outcome.error.strip().splitlines()[-1]}"
+        else:
+            append_record(out / "runs.jsonl", outcome.result)
+            scores = " ".join(f"{s:.2f}" for s in outcome.result["success"])
+            line = f"{scores} ({outcome.result['seconds'][-1]:.0f} s)"
+        if progress:
+            print(
+                f"{run.env_id} {run.method} seed {run.seed} {list(run.budgets)}: {line}", flush=True
+            )
+
+    map_runs(run_grid, todo, workers, address, finished)
+    summary = summarise(read_records(out / "runs.jsonl"), envs, methods, seeds, budgets)
+    summary["failed"] = failed
+    write_summary(out, summary)
+    plot_success(out / "success.png", summary, envs, methods, budgets)
+    print(f"IQM greedy success over {len(seeds)} seeds, at {budgets} interactions")
+    print_table(
+        {
+            f"{env_id} {method}": " ".join(f"{s:.2f}" for s in entry["success"].values())
+            for env_id in envs
+            for method, entry in summary[env_id].items()
+        }
+    )
+    return summary
+
+
+def _key(record: dict) -> tuple:
+    return (record["env_id"], record["method"], record["seed"], tuple(record["budgets"]))
+
+
+def summarise(
+    records: list[dict],
+    envs: Sequence[str],
+    methods: Sequence[str],
+    seeds: Sequence[int],
+    budgets: Sequence[int],
+) -> dict:
+    """Per env and method: IQM success over the seeds at each budget with its 95% interval,
+    the budget that reaches ``SUCCESS`` and the seeds' runs."""
+    summary: dict = {"budgets": list(budgets), "seeds": list(seeds), "episodes": EPISODES}
+    for env_id in envs:
+        summary[env_id] = {}
+        for method in methods:
+            table = np.full((len(seeds), len(budgets)), np.nan)
+            for r in records:
+                if r["env_id"] != env_id or r["method"] != method or r["seed"] not in seeds:
+                    continue
+                for budget, score in zip(r["budgets"], r["success"], strict=True):
+                    if budget in budgets:
+                        table[seeds.index(r["seed"]), budgets.index(budget)] = score
+            complete = ~np.isnan(table).any(axis=0)
+            if not complete.any():
+                continue
+            kept = [b for b, c in zip(budgets, complete, strict=True) if c]
+            iqm, low, high = iqm_curves({method: table[:, complete]})[method]
+            reach = [b for b, s in zip(kept, iqm, strict=True) if s >= SUCCESS]
+            summary[env_id][method] = {
+                "success": {str(b): float(s) for b, s in zip(kept, iqm, strict=True)},
+                "interval": {
+                    str(b): [float(lo), float(hi)]
+                    for b, lo, hi in zip(kept, low, high, strict=True)
+                },
+                "to_reach": reach[0] if reach else None,
+                "per_seed": {
+                    str(b): table[:, i].tolist() for i, b in enumerate(budgets) if complete[i]
+                },
+            }
+    return summary
+
+
+def plot_success(
+    path: Path, summary: dict, envs: Sequence[str], methods: Sequence[str], budgets: Sequence[int]
+) -> None:
+    """IQM success against interactions, one panel per env, with the seeds' 95% interval."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    columns = min(4, len(envs))
+    rows = -(-len(envs) // columns)
+    fig, axes = plt.subplots(rows, columns, figsize=(3.6 * columns, 2.9 * rows), squeeze=False)
+    for ax, env_id in zip(axes.flat, envs, strict=False):
+        for method in methods:
+            entry = summary[env_id].get(method)
+            if entry is None:
+                continue
+            x = [int(b) for b in entry["success"]]
+            ax.plot(x, list(entry["success"].values()), marker="o", label=method)
+            low, high = zip(*entry["interval"].values(), strict=True)
+            ax.fill_between(x, low, high, alpha=0.2)
+        ax.axhline(SUCCESS, color="k", linestyle=":", linewidth=0.8)
+        ax.set(title=env_id.removeprefix("MiniGrid-"), xscale="log", ylim=(-0.03, 1.03))
+        ax.set_xlabel("interactions")
+        ax.set_ylabel("greedy success")
+    for ax in list(axes.flat)[len(envs) :]:
+        ax.axis("off")
+    axes.flat[0].legend(fontsize="small")
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
