@@ -246,7 +246,8 @@ def summarise(
     budgets: Sequence[int],
 ) -> dict:
     """Per env and method: IQM success over the seeds at each budget with its 95% interval,
-    the budget that reaches ``SUCCESS`` and the seeds' runs."""
+    the budget that reaches ``SUCCESS`` and each seed's success (only the seeds that ran, if
+    the benchmark stopped)."""
     summary: dict = {"budgets": list(budgets), "seeds": list(seeds), "episodes": EPISODES}
     for env_id in envs:
         summary[env_id] = {}
@@ -258,23 +259,21 @@ def summarise(
                 for budget, score in zip(r["budgets"], r["success"], strict=True):
                     if budget in budgets:
                         table[seeds.index(r["seed"]), budgets.index(budget)] = score
-            complete = ~np.isnan(table).any(axis=0)
-            if not complete.any():
-                continue
-            kept = [b for b, c in zip(budgets, complete, strict=True) if c]
-            iqm, low, high = iqm_curves({method: table[:, complete]})[method]
-            reach = [b for b, s in zip(kept, iqm, strict=True) if s >= SUCCESS]
-            summary[env_id][method] = {
-                "success": {str(b): float(s) for b, s in zip(kept, iqm, strict=True)},
-                "interval": {
-                    str(b): [float(lo), float(hi)]
-                    for b, lo, hi in zip(kept, low, high, strict=True)
-                },
-                "to_reach": reach[0] if reach else None,
-                "per_seed": {
-                    str(b): table[:, i].tolist() for i, b in enumerate(budgets) if complete[i]
-                },
-            }
+            entry = {"success": {}, "interval": {}, "to_reach": None, "per_seed": {}}
+            for column, budget in zip(table.T, budgets, strict=True):
+                done = column[~np.isnan(column)]  # a stopped benchmark: the seeds that ran
+                if not len(done):
+                    continue
+                iqm, low, high = (float(v[0]) for v in iqm_curves({method: done[:, None]})[method])
+                entry["success"][str(budget)] = iqm
+                entry["interval"][str(budget)] = [low, high]
+                entry["per_seed"][str(budget)] = {
+                    str(seed): float(v) for seed, v in zip(seeds, column, strict=True) if v == v
+                }
+                if entry["to_reach"] is None and iqm >= SUCCESS:
+                    entry["to_reach"] = budget
+            if entry["success"]:
+                summary[env_id][method] = entry
     return summary
 
 
