@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 import torch
 from gymnasium.utils.env_checker import check_env
+from small_maze import SMALL, small_maze
 from stable_baselines3.common.callbacks import CheckpointCallback, EvalCallback
 
 from vistask.agents import Compaction, RLVCAgent, TabularQAgent
@@ -25,18 +26,6 @@ from vistask.features import VisualFeatureExtractor, propose
 from vistask.features.compounds import presence_of_candidates
 from vistask.rlvc import ClassTree, VisualClassifier, collect
 from vistask.wrappers import VisualClasses, VisualFeatures
-
-SMALL = dict(
-    obstacles=((0.45, 0.0, 0.55, 0.6),),
-    exits=((0.0, 0.0, 0.2, 0.2), (0.8, 0.0, 1.0, 0.2)),
-    step=0.2,
-    window=64,
-    pixels_per_unit=240.0,
-)
-
-
-def small_maze() -> gym.Env:
-    return gym.make("vistask/VisualMaze-v0", **SMALL)
 
 
 @pytest.fixture(scope="module")

@@ -7,24 +7,12 @@ import pytest
 import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from small_maze import small_maze
 from stable_baselines3.common.callbacks import BaseCallback
 
-import vistask.envs  # noqa: F401  (registers the vistask ids)
 from vistask.agents import RLVCAgent
 from vistask.rlvc import PackedPresence
 from vistask.rlvc.novelty import novelty_bonus, simhash_codes
-
-SMALL = dict(
-    obstacles=((0.45, 0.0, 0.55, 0.6),),
-    exits=((0.0, 0.0, 0.2, 0.2), (0.8, 0.0, 1.0, 0.2)),
-    step=0.2,
-    window=64,
-    pixels_per_unit=240.0,
-)
-
-
-def small_maze() -> gym.Env:
-    return gym.make("vistask/VisualMaze-v0", **SMALL)
 
 
 @settings(max_examples=30, deadline=None)

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 import torch
 from gymnasium.utils.env_checker import check_env
+from small_maze import SMALL
 
 from vistask.agents import RLJCAgent, RLVCAgent
 from vistask.envs import MazeOracle, evaluate_policy, start_positions
@@ -27,14 +28,6 @@ from vistask.rlvc import (
     joint_values,
 )
 from vistask.wrappers import JointClasses
-
-SMALL = dict(
-    obstacles=((0.45, 0.0, 0.55, 0.6),),
-    exits=((0.0, 0.0, 0.2, 0.2), (0.8, 0.0, 1.0, 0.2)),
-    step=0.2,
-    window=64,
-    pixels_per_unit=240.0,
-)
 
 
 def random_tree(rng: np.random.Generator, n_features: int = 6, splits: int = 25) -> JointTree:
