@@ -79,6 +79,7 @@ class VisualAgent(SB3Model):
 
     continuous: ClassVar[bool] = False
     learner_class: ClassVar[type]
+    compounds: bool = False  # whether the learner makes compound features
 
     def __init__(
         self,
@@ -297,7 +298,7 @@ class VisualAgent(SB3Model):
         interactions = self.num_timesteps + total_timesteps
         per_interaction = (
             -(-(self.n_words + COMPOUND_ROOM) // 8)  # presence bits of its percept
-            + keypoints * (OCCURRENCE_BYTES + PAIR_BYTES)
+            + keypoints * (OCCURRENCE_BYTES * self.compounds + PAIR_BYTES)
             + INTERACTION_BYTES
         )
         image = int(np.prod(self.observation_space.shape))
@@ -356,18 +357,20 @@ class VisualAgent(SB3Model):
             if self.extractor is None:
                 detected = self._fit_vocabulary(transitions, progress)
             progress.phase("features")
-            parts.append(
-                InteractionDatabase.build(
-                    transitions, self.extractor, detected, self.learner.compounds
-                )
+            part = InteractionDatabase.build(
+                transitions, self.extractor, detected, self.learner.compounds
             )
+            if not self.compounds:
+                part.occurrences = None  # only the compound search reads where words occur
+            parts.append(part)
             fitting = self.timing["vocabulary"] - vocabulary  # SIFT and words only
             self.timing["extract"] += time.perf_counter() - t1 - fitting
             self.num_timesteps += len(transitions)
             progress.phase("collecting")
         self._log_returns(np.concatenate(returns), progress)
         earlier = [] if self.database is None else [self.database]
-        self.database = InteractionDatabase.concat(*earlier, *parts)  # one copy of each part
+        # One copy of each part; a percept seen again is held once.
+        self.database = InteractionDatabase.concat(*earlier, *parts).without_repeats()
 
     def _fit_vocabulary(self, transitions: Transitions, progress: LearnProgress) -> list:
         """SIFT on the first chunk's percepts, the vocabulary fitted on their descriptors and

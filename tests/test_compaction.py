@@ -14,7 +14,9 @@ from vistask.rlvc import (
     interchangeable,
     merge_groups,
 )
+from vistask.rlvc import compaction
 from vistask.rlvc.compaction import induced_splits
+from vistask.rlvc.presence import PackedPresence
 from vistask.rlvc.solver import state_values
 
 
@@ -145,10 +147,14 @@ def test_simplify_keeps_the_class_of_every_given_percept_and_drops_features():
 
 
 # One batch of trials; several batches, where a drop early in a batch changes the class of
-# a later trial's percepts (seed 10) or the bits of the percepts it replays (seed 15).
-@pytest.mark.parametrize("n_features, seed", [(20, 12), (100, 12), (100, 10), (100, 15)])
+# a later trial's percepts (seed 10) or the bits of the percepts it replays (seed 15); percepts
+# seen many times, held as bits (simplify replays each distinct one once).
+@pytest.mark.parametrize(
+    "n_features, seed, repeated",
+    [(20, 12, False), (100, 12, False), (100, 10, False), (100, 15, False), (60, 16, True)],
+)
 def test_simplify_drops_what_reclassifying_every_percept_one_feature_at_a_time_drops(
-    n_features, seed
+    n_features, seed, repeated
 ):
     rng = np.random.default_rng(seed)
     _, bdd = random_splits(n_features, 2 * n_features, seed=seed)
@@ -158,6 +164,8 @@ def test_simplify_drops_what_reclassifying_every_percept_one_feature_at_a_time_d
     for c, f in [(0, 4), (3, 11), (1, 4), (5, 17)]:  # splits after the merge
         bdd.split(c, f)
     seen = torch.from_numpy(rng.random((4 * n_features, n_features)) < 0.25)
+    if repeated:
+        seen = seen[torch.from_numpy(rng.zipf(1.5, 20 * n_features) % len(seen))]
     allowed = torch.from_numpy(rng.random((bdd.n_classes,) * 2) < 0.3)
     allowed |= torch.eye(bdd.n_classes, dtype=torch.bool)
     # Brute force: rarest feature first, drop it when classifying every seen percept with it
@@ -169,7 +177,7 @@ def test_simplify_drops_what_reclassifying_every_percept_one_feature_at_a_time_d
         trial[:, f] = False
         if allowed[before, bdd.classify(trial)].all():
             kept, expected = trial, [*expected, f]
-    dropped, classes = bdd.simplify(seen, allowed)
+    dropped, classes = bdd.simplify(PackedPresence.from_dense(seen) if repeated else seen, allowed)
     assert expected and dropped == expected
     assert torch.equal(classes, bdd.classify(seen))
     # A dropped feature moves a percept before a later step tests the next feature there:
@@ -346,6 +354,15 @@ def test_induced_splits_keep_every_percept_in_its_class_and_test_only_the_featur
     induced = ClassBDD.from_splits(30, splits, groups)
     assert torch.equal(induced.classify(presence), classes)
     assert induced.n_classes == int(classes.max()) + 1
+
+
+def test_induced_splits_grow_the_same_tree_from_a_sparse_matrix(monkeypatch):
+    rng = np.random.default_rng(23)
+    presence = torch.from_numpy(rng.random((600, 40)) < 0.2)
+    classes = torch.unique(presence[:, :5].sum(dim=1) + 2 * presence[:, 7], return_inverse=True)[1]
+    dense = induced_splits(presence, classes, list(range(40)))
+    monkeypatch.setattr(compaction, "DENSE_TREE_BYTES", 0)
+    assert induced_splits(presence, classes, list(range(40))) == dense
 
 
 def test_induced_splits_test_the_feature_that_tells_the_classes_apart():

@@ -1,5 +1,7 @@
 """RLVC's parts on synthetic data: split search, t-test, Q solver, class tree, database."""
 
+from dataclasses import replace
+
 import gymnasium as gym
 import numpy as np
 import pytest
@@ -7,6 +9,7 @@ import torch
 
 import vistask.envs  # noqa: F401  (registers the maze)
 from vistask.envs import VisualMazeEnv, VisualMazeVectorEnv
+from vistask.features import Occurrences
 from vistask.memory import _set_madvise_hugepage
 from vistask.rlvc import (
     RLVC,
@@ -382,6 +385,45 @@ def test_concatenated_databases_keep_each_interaction_linked_to_its_percepts():
     )
     with pytest.raises(ValueError, match="features"):
         InteractionDatabase.concat(first, narrower)
+
+
+def test_a_database_holds_each_repeated_percept_once_and_learns_the_same_classes():
+    # Percepts drawn from a bank of 40 distinct ones, so most of the 2,000 repeat.
+    rng = np.random.default_rng(3)
+    bank = rng.random((40, 12)) < 0.4
+    bank[:, 0] = np.arange(40) % 2 == 0  # the feature that the TD errors follow
+    obs, next_obs = rng.integers(0, 40, 1000), rng.integers(0, 40, 1000)
+    percept = np.arange(2000)
+    drawn = np.concatenate([obs, next_obs])
+    db = InteractionDatabase(
+        torch.from_numpy(bank[drawn]),
+        torch.from_numpy(percept[:1000]),
+        torch.from_numpy(rng.integers(0, 2, 1000)),
+        torch.from_numpy(np.where(bank[next_obs, 0], 1.0, 0.0)),
+        torch.from_numpy(percept[1000:]),
+        torch.zeros(1000, dtype=torch.bool),
+        positions=np.stack([drawn % 40, drawn % 40], axis=1).astype(float),
+    )
+    once = db.without_repeats()
+    assert len(once.presence) == 40 and len(once) == len(db)
+    for side in ("obs", "next_obs"):
+        assert torch.equal(once.presence[getattr(once, side)], db.presence[getattr(db, side)])
+        np.testing.assert_array_equal(
+            once.positions[getattr(once, side)], db.positions[getattr(db, side)]
+        )
+    # First seen first: the first interaction's percept is percept 0.
+    assert once.obs[0] == 0
+    learned = [RLVC(12, 2, gamma=0.9).learn(d, progress=False) for d in (db, once)]
+    assert learned[0].n_classes > 1
+    assert learned[0].structure.state_dict() == learned[1].structure.state_dict()
+    # Another position keeps a percept apart; a database that keeps occurrences is kept whole.
+    db.positions[0] += 1.0
+    assert len(db.without_repeats().presence) == 41
+    image, feature = db.presence.nonzero()
+    n = len(image)
+    where = Occurrences(image.numpy(), feature.numpy(), np.zeros((n, 2)), np.ones(n), 2000)
+    kept = replace(db, occurrences=where)
+    assert kept.without_repeats() is kept
 
 
 def synthetic_chain(n_states: int = 6, n: int = 4000, seed: int = 0) -> InteractionDatabase:

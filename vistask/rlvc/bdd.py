@@ -34,7 +34,7 @@ import numpy as np
 import torch
 
 from vistask.checks import checked, warn
-from vistask.rlvc.presence import PackedPresence
+from vistask.rlvc.presence import PackedPresence, distinct_rows
 
 try:
     from dd import cudd as _dd
@@ -219,19 +219,21 @@ class ClassBDD:
         """
         if not self._selected:
             return [], self.classify(presence)
-        # The replay reads only the features that the history tests: a copy of their columns,
-        # column-major for the trials that read one column each (torch selects them row-major,
-        # then transposes: 2.5x faster than selecting rows of the transpose).
+        # The replay reads only the features that the history tests, and each distinct row of
+        # them once (percepts equal on them move alike): column-major, for the trials that
+        # read one column each.
         tested = sorted(self._tested_features())
         column = np.full(self.n_features, -1)
         column[tested] = np.arange(len(tested))
-        bits = presence[:, tested].T.contiguous().cpu().numpy().T
-        counts = bits.sum(axis=0)
+        packed, _, inverse, weight = distinct_rows(presence, tested)
+        bits = np.asfortranarray(np.unpackbits(packed, axis=1, count=len(tested)).view(bool))
+        rows, columns = bits.nonzero()
+        counts = np.bincount(columns, weights=weight[rows], minlength=len(tested))
         order = sorted(self._selected, key=lambda f: (counts[column[f]], f))
         allowed = np.eye(self.n_classes, dtype=bool) if allowed is None else allowed.numpy()
         dropped, classes = _droppable(bits, self._compiled(column), column[order], allowed)
         dropped = [tested[j] for j in dropped]
-        classes = torch.as_tensor(classes, dtype=torch.long, device=presence.device)
+        classes = torch.as_tensor(classes[inverse], dtype=torch.long, device=presence.device)
         if not dropped:
             return dropped, classes
         absent = {_name(f): False for f in dropped}
@@ -383,7 +385,9 @@ def _droppable(
     columns are zeroed."""
     # trail[i]: every row's class before step i. Dropping a column moves only the rows that
     # reach a step testing it, and only from there on.
-    trail = np.empty((len(steps) + 1, len(bits)), dtype=np.int32)
+    n_classes = max(len(target) for _, target in steps) if steps else 1
+    trail_type = np.int16 if n_classes <= np.iinfo(np.int16).max else np.int32
+    trail = np.empty((len(steps) + 1, len(bits)), dtype=trail_type)
     classes = _replay(bits, steps, trail=trail)
     tests = [[] for _ in range(bits.shape[1])]  # steps that test each column
     for i, (columns, _) in enumerate(steps):
@@ -406,7 +410,7 @@ def _droppable(
     def replay(rows: np.ndarray, zeroed: np.ndarray, start: int) -> np.ndarray:
         """The trail of ``rows`` from step ``start`` on, with column ``zeroed[r]`` absent from
         row r (classifying with a column zeroed is classifying with the cofactor)."""
-        new_trail = np.empty((len(steps) + 1 - start, len(rows)), dtype=np.int32)
+        new_trail = np.empty((len(steps) + 1 - start, len(rows)), dtype=trail.dtype)
         _replay(bits, steps, start, trail[start, rows], new_trail, rows, zeroed)
         return new_trail
 

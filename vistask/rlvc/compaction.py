@@ -25,11 +25,12 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 import numpy as np
+import scipy.sparse
 import torch
 from sklearn.tree import DecisionTreeClassifier
 
 from vistask.checks import checked
-from vistask.rlvc.presence import PackedPresence
+from vistask.rlvc.presence import PackedPresence, distinct_rows
 from vistask.rlvc.solver import state_values
 
 DROP_VALUE_TOLERANCE = 10.0  # in tolerances; see the module's docstring
@@ -41,6 +42,9 @@ DROP_VALUE_TOLERANCE = 10.0  # in tolerances; see the module's docstring
 NOISY_COPIES = 4
 DROP_RATE = 0.15
 ACCEPTABLE_BLOCK = 1024  # rows of ``acceptable`` compared at once
+# ``induced_splits`` hands scikit-learn a sparse matrix where the dense one would take more
+# bytes (it grows the same tree from either).
+DENSE_TREE_BYTES = 2**30
 
 
 @checked
@@ -167,31 +171,29 @@ def induced_splits(
     classes_of, labels = np.unique(labels, return_inverse=True)  # the tree's class indices
     if len(classes_of) < 2 or len(features) == 0:
         return [], [int(classes_of[0]) if len(classes_of) else 0]
-    # A percept seen many times is one row, weighted by its count (place navigation: 400,000
-    # interactions show at most 51,200 views).
-    bits = np.packbits(presence[:, torch.as_tensor(features)].cpu().numpy(), axis=1)
-    rows_as_bytes = bits.view(np.dtype((np.void, bits.shape[1]))).ravel()  # 20x np.unique(axis)
-    _, first, inverse, weight = np.unique(
-        rows_as_bytes, return_index=True, return_inverse=True, return_counts=True
-    )
+    # A percept seen many times is one row, weighted by its count.
+    bits, first, inverse, weight = distinct_rows(presence, features)
     if (labels[first][inverse] != labels).any():
         raise ValueError("percepts equal on the features are in different classes")
     labels, n = labels[first], len(first)
-    rows, columns = np.unpackbits(bits[first], axis=1, count=len(features)).nonzero()
+    rows, columns = np.unpackbits(bits, axis=1, count=len(features)).nonzero()
     rng = np.random.default_rng(seed)
     copies = 1 + NOISY_COPIES  # the percepts, then their noisy copies
     kept = [rng.random(len(rows)) >= DROP_RATE for _ in range(NOISY_COPIES)]
-    # Dense and column-major: scikit-learn grew the same tree in 7-9 s, where it took 13 s
-    # row-major and 12-19 s from a sparse matrix (the mountain car's classes fused from 11
-    # structures: 44,000 percepts, 639 features).
-    x = np.zeros((n * copies, len(features)), dtype=np.float32, order="F")
-    x[
-        np.concatenate([rows, *(rows[k] + (i + 1) * n for i, k in enumerate(kept))]),
-        np.concatenate([columns, *(columns[k] for k in kept)]),
-    ] = 1
+    rows = np.concatenate([rows, *(rows[k] + (i + 1) * n for i, k in enumerate(kept))])
+    columns = np.concatenate([columns, *(columns[k] for k in kept)])
+    shape = (n * copies, len(features))
+    if np.prod(shape) * 4 <= DENSE_TREE_BYTES:
+        # Dense and column-major: scikit-learn grew the same tree in 7-9 s, where it took 13 s
+        # row-major and 12-19 s from a sparse matrix (the mountain car's classes fused from
+        # 11 structures: 44,000 percepts, 639 features).
+        x = np.zeros(shape, dtype=np.float32, order="F")
+        x[rows, columns] = 1
+    else:
+        x = scipy.sparse.csc_matrix((np.ones(len(rows), np.float32), (rows, columns)), shape)
     tree = DecisionTreeClassifier(criterion="gini", random_state=seed)
     tree = tree.fit(x, np.tile(labels, copies), sample_weight=np.tile(weight, copies)).tree_
-    leaf_of = tree.apply(x[:n])
+    leaf_of = tree.apply(x[:n].tocsr() if scipy.sparse.issparse(x) else x[:n])
     node_class = _node_classes(tree, leaf_of, labels, weight, len(classes_of))
     # Breadth first, the absent child keeps its parent's class id and the present child
     # takes the next one, as ``ClassBDD.split`` numbers them.

@@ -409,6 +409,38 @@ class InteractionDatabase:
             else Occurrences.concat(occurrences),
         )
 
+    def without_repeats(self) -> InteractionDatabase:
+        """The same interactions, each percept that repeats an earlier one (the same features
+        and position) held once, in the order they were first seen; a database that keeps
+        feature occurrences as it is (equal features may lie in other places).
+
+        An env that draws its views from a bank (place navigation) shows the same percepts
+        again and again: its database then grows with the views, not the interactions.
+        """
+        if self.occurrences is not None:
+            return self
+        keys = self.presence.numpy().packed
+        if self.positions is not None:
+            place = np.ascontiguousarray(self.positions, dtype=np.float64)
+            keys = np.concatenate([keys, place.view(np.uint8).reshape(len(keys), -1)], axis=1)
+        rows_as_bytes = keys.view(np.dtype((np.void, keys.shape[1]))).ravel()
+        _, first, inverse = np.unique(rows_as_bytes, return_index=True, return_inverse=True)
+        if len(first) == len(keys):
+            return self
+        order = np.argsort(first)  # distinct percepts by first appearance
+        new_id = np.empty(len(first), dtype=np.int64)
+        new_id[order] = np.arange(len(first))
+        percept = torch.from_numpy(new_id[inverse.ravel()])
+        kept = first[order]
+        return replace(
+            self,
+            presence=PackedPresence(self.presence.numpy().packed[kept], self.n_features),
+            obs=percept[self.obs],
+            next_obs=percept[self.next_obs],
+            positions=None if self.positions is None else self.positions[kept],
+            _coo=None,
+        )
+
     def take(self, index: torch.Tensor) -> InteractionDatabase:
         """The interactions ``index`` (N',) long, repeats allowed, over the same percepts."""
         columns = ("obs", "actions", "rewards", "next_obs", "terminal")

@@ -180,4 +180,41 @@ class PackedPresence:
         return PackedPresence(np.concatenate([p._bits.packed for p in parts]), widths.pop())
 
 
-__all__ = ["PackedBits", "PackedPresence"]
+def distinct_rows(
+    presence: PackedPresence | torch.Tensor, columns: Sequence[int]
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The distinct rows of ``presence[:, columns]``, read ``ROWS_PER_CHUNK`` rows at a time.
+
+    Percepts seen many times are one row each: place navigation's 600,000 interactions show
+    at most its bank of views. Rows are compared as packed bytes.
+
+    Args:
+        presence: (M, F) bool presence (``PackedPresence`` or a bool tensor).
+        columns: the C columns read.
+
+    Returns:
+        bits (U, ceil(C / 8)) uint8, the distinct rows packed (``np.packbits``, big-endian
+        bits); first (U,) the first row of each; inverse (M,) the distinct row of each row;
+        counts (U,) the rows of each.
+
+    Example:
+        >>> bits, first, inverse, counts = distinct_rows(torch.eye(3).bool()[[0, 1, 0]], [0, 1])
+        >>> first, inverse, counts
+        (array([1, 0]), array([1, 0, 1]), array([1, 2]))
+    """
+    columns = torch.as_tensor(np.asarray(columns, dtype=np.int64))
+    packed = np.concatenate(
+        [
+            np.packbits(presence[start : start + ROWS_PER_CHUNK, columns].numpy(), axis=1)
+            for start in range(0, len(presence), ROWS_PER_CHUNK)
+        ]
+        or [np.zeros((0, -(-len(columns) // 8)), np.uint8)]
+    )
+    rows_as_bytes = packed.view(np.dtype((np.void, packed.shape[1]))).ravel()  # 20x np.unique(axis)
+    _, first, inverse, counts = np.unique(
+        rows_as_bytes, return_index=True, return_inverse=True, return_counts=True
+    )
+    return packed[first], first, inverse.ravel(), counts
+
+
+__all__ = ["PackedBits", "PackedPresence", "distinct_rows"]

@@ -20,7 +20,7 @@ import torch
 
 from vistask.checks import checked
 from vistask.rlvc.bdd import ClassBDD
-from vistask.rlvc.presence import PackedPresence
+from vistask.rlvc.presence import PackedPresence, distinct_rows
 from vistask.rlvc.tree import ClassTree
 
 MAX_DISTANCES = 2**24  # distances held at once (64 MiB of float32)
@@ -53,15 +53,14 @@ class SeenPercepts:
     ) -> SeenPercepts:
         """The seen patterns of ``presence`` (M, F) bool, classified by ``structure``."""
         features = torch.as_tensor(structure.selected_features, dtype=torch.long)
-        patterns, inverse = torch.unique(presence[:, features], dim=0, return_inverse=True)
+        bits, first, inverse, counts = distinct_rows(presence, features)  # rows in order
         classes = structure.classify(presence)
-        first = torch.full((len(patterns),), len(presence)).scatter_reduce_(
-            0, inverse, torch.arange(len(presence)), "amin"
-        )
+        first, inverse = torch.from_numpy(first), torch.from_numpy(inverse)
         if not torch.equal(classes, classes[first][inverse]):
             raise ValueError("the structure's classes depend on features it does not list")
-        patterns = sp.csr_matrix(patterns.numpy(), dtype=np.float32)
-        return cls(features, patterns, classes[first], torch.bincount(inverse))
+        patterns = np.unpackbits(bits, axis=1, count=len(features))
+        patterns = sp.csr_matrix(patterns, dtype=np.float32)
+        return cls(features, patterns, classes[first], torch.from_numpy(counts))
 
     def nearest(self, presence: torch.Tensor | PackedPresence) -> torch.Tensor:
         """(N,) the class that most of the nearest seen percepts of each percept are in
