@@ -11,10 +11,10 @@ from vistask.rlvc import (
     Committee,
     InteractionDatabase,
     acceptable,
+    compaction,
     interchangeable,
     merge_groups,
 )
-from vistask.rlvc import compaction
 from vistask.rlvc.compaction import induced_splits
 from vistask.rlvc.presence import PackedPresence
 from vistask.rlvc.solver import state_values

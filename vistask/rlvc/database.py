@@ -10,6 +10,7 @@ scatter-adds (sparse products) instead of dense (interactions x features) produc
 from __future__ import annotations
 
 import copy
+import hashlib
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field, replace
 
@@ -419,13 +420,20 @@ class InteractionDatabase:
         """
         if self.occurrences is not None:
             return self
-        keys = self.presence.numpy().packed
+        packed = self.presence.numpy().packed
+        place = [b""] * len(packed)
         if self.positions is not None:
-            place = np.ascontiguousarray(self.positions, dtype=np.float64)
-            keys = np.concatenate([keys, place.view(np.uint8).reshape(len(keys), -1)], axis=1)
-        rows_as_bytes = keys.view(np.dtype((np.void, keys.shape[1]))).ravel()
-        _, first, inverse = np.unique(rows_as_bytes, return_index=True, return_inverse=True)
-        if len(first) == len(keys):
+            place = [p.tobytes() for p in np.asarray(self.positions, dtype=np.float64)]
+        # Rows compared by 128-bit digests: sorting the rows themselves copied them twice.
+        digests = np.array(
+            [
+                hashlib.blake2b(row.tobytes() + at, digest_size=16).digest()
+                for row, at in zip(packed, place, strict=True)
+            ],
+            dtype="V16",
+        )
+        _, first, inverse = np.unique(digests, return_index=True, return_inverse=True)
+        if len(first) == len(packed):
             return self
         order = np.argsort(first)  # distinct percepts by first appearance
         new_id = np.empty(len(first), dtype=np.int64)
@@ -434,7 +442,7 @@ class InteractionDatabase:
         kept = first[order]
         return replace(
             self,
-            presence=PackedPresence(self.presence.numpy().packed[kept], self.n_features),
+            presence=PackedPresence(packed[kept], self.n_features),
             obs=percept[self.obs],
             next_obs=percept[self.next_obs],
             positions=None if self.positions is None else self.positions[kept],
