@@ -406,6 +406,8 @@ def test_a_database_holds_each_repeated_percept_once_and_learns_the_same_classes
     )
     once = db.without_repeats()
     assert len(once.presence) == 40 and len(once) == len(db)
+    in_order = drawn[np.sort(np.unique(drawn, return_index=True)[1])]  # by first appearance
+    np.testing.assert_array_equal(once.counts, np.bincount(drawn)[in_order])
     for side in ("obs", "next_obs"):
         assert torch.equal(once.presence[getattr(once, side)], db.presence[getattr(db, side)])
         np.testing.assert_array_equal(
@@ -413,9 +415,17 @@ def test_a_database_holds_each_repeated_percept_once_and_learns_the_same_classes
         )
     # First seen first: the first interaction's percept is percept 0.
     assert once.obs[0] == 0
-    learned = [RLVC(12, 2, gamma=0.9).learn(d, progress=False) for d in (db, once)]
-    assert learned[0].n_classes > 1
-    assert learned[0].structure.state_dict() == learned[1].structure.state_dict()
+    # The same classes, compacted and regrown too: compaction weighs a percept by its count.
+    for compaction in (False, True):
+        learned = [
+            RLVC(12, 2, gamma=0.9, compaction=compaction).learn(d, progress=False)
+            for d in (db, once)
+        ]
+        if compaction:
+            learned = [rlvc.regrow(d) for rlvc, d in zip(learned, (db, once), strict=True)]
+        assert learned[0].n_classes > 1
+        assert learned[0].structure.state_dict() == learned[1].structure.state_dict()
+    assert torch.equal(InteractionDatabase.from_state_dict(once.state_dict()).counts, once.counts)
     # Another position keeps a percept apart; a database that keeps occurrences is kept whole.
     db.positions[0] += 1.0
     assert len(db.without_repeats().presence) == 41

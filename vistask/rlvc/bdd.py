@@ -202,7 +202,10 @@ class ClassBDD:
         self._update_selected()
 
     def simplify(
-        self, presence: torch.Tensor | PackedPresence, allowed: torch.Tensor | None = None
+        self,
+        presence: torch.Tensor | PackedPresence,
+        allowed: torch.Tensor | None = None,
+        counts: torch.Tensor | None = None,
     ) -> tuple[list[int], torch.Tensor]:
         """Drop every feature whose absence moves none of these percepts out of its class, or
         only into classes ``allowed`` for it.
@@ -216,6 +219,8 @@ class ClassBDD:
             presence: (N, F) bool presence of the percepts that must stay where they are.
             allowed: (S, S) bool, True where a percept of class i may move to class j (None:
                 nowhere else).
+            counts: (N,) long, the times each percept was met, which order the features from
+                the rarest (None: once each).
         """
         if not self._selected:
             return [], self.classify(presence)
@@ -225,7 +230,7 @@ class ClassBDD:
         tested = sorted(self._tested_features())
         column = np.full(self.n_features, -1)
         column[tested] = np.arange(len(tested))
-        packed, _, inverse, weight = distinct_rows(presence, tested)
+        packed, _, inverse, weight = distinct_rows(presence, tested, counts)
         bits = np.asfortranarray(np.unpackbits(packed, axis=1, count=len(tested)).view(bool))
         rows, columns = bits.nonzero()
         counts = np.bincount(columns, weights=weight[rows], minlength=len(tested))

@@ -138,6 +138,7 @@ def induced_splits(
     classes: torch.Tensor,
     features: Sequence[int],
     seed: int = 0,
+    counts: torch.Tensor | None = None,
 ) -> tuple[list[tuple[int, int]], list[int]]:
     """A decision tree over ``features`` that puts every percept in its class, as class splits.
 
@@ -160,6 +161,7 @@ def induced_splits(
         classes: (N,) long class of each percept; percepts equal on ``features`` must share it.
         features: the features the tree may test.
         seed: draws the copies and breaks ties between equally good tests.
+        counts: (N,) long, the times each percept was met, its weight (None: once each).
 
     Example:
         >>> presence = torch.tensor([[1, 0, 0], [0, 1, 0], [0, 0, 1]]).bool()
@@ -172,7 +174,7 @@ def induced_splits(
     if len(classes_of) < 2 or len(features) == 0:
         return [], [int(classes_of[0]) if len(classes_of) else 0]
     # A percept seen many times is one row, weighted by its count.
-    bits, first, inverse, weight = distinct_rows(presence, features)
+    bits, first, inverse, weight = distinct_rows(presence, features, counts)
     if (labels[first][inverse] != labels).any():
         raise ValueError("percepts equal on the features are in different classes")
     labels, n = labels[first], len(first)

@@ -300,6 +300,8 @@ class InteractionDatabase:
             true-grid ceiling only; the learner never reads them).
         occurrences: where each feature occurs in each percept (compounds included), for the
             compound search; None when only presence is known.
+        counts: (M,) long, the times each percept was met (None: once each;
+            ``without_repeats`` holds a repeated percept once and counts it).
     """
 
     presence: PackedPresence | torch.Tensor
@@ -310,6 +312,7 @@ class InteractionDatabase:
     terminal: torch.Tensor
     positions: np.ndarray | None = None
     occurrences: Occurrences | None = None
+    counts: torch.Tensor | None = None
     _coo: tuple[torch.Tensor, torch.Tensor] | None = field(default=None, repr=False)
 
     def __post_init__(self) -> None:
@@ -331,9 +334,18 @@ class InteractionDatabase:
             raise ValueError(f"percept indices must lie in 0..{m - 1}")
         if self.occurrences is not None and self.occurrences.n_images != m:
             raise ValueError(f"occurrences are of {self.occurrences.n_images} percepts, not {m}")
+        if self.counts is not None and (self.counts.shape != (m,) or self.counts.min() < 1):
+            raise ValueError(f"counts must be (M,) = ({m},) positive, got {self.counts}")
 
     def __len__(self) -> int:
         return len(self.actions)
+
+    @property
+    def percept_counts(self) -> torch.Tensor:
+        """(M,) long, the times each percept was met."""
+        if self.counts is None:
+            return torch.ones(len(self.presence), dtype=torch.long)
+        return self.counts
 
     @property
     def n_features(self) -> int:
@@ -408,12 +420,16 @@ class InteractionDatabase:
             occurrences=None
             if any(o is None for o in occurrences)
             else Occurrences.concat(occurrences),
+            counts=None
+            if all(db.counts is None for db in databases)
+            else torch.cat([db.percept_counts for db in databases]),
         )
 
     def without_repeats(self) -> InteractionDatabase:
         """The same interactions, each percept that repeats an earlier one (the same features
-        and position) held once, in the order they were first seen; a database that keeps
-        feature occurrences as it is (equal features may lie in other places).
+        and position) held once, in the order they were first seen, with the times it was met
+        in ``counts``; a database that keeps feature occurrences as it is (equal features may
+        lie in other places).
 
         An env that draws its views from a bank (place navigation) shows the same percepts
         again and again: its database then grows with the views, not the interactions.
@@ -440,12 +456,14 @@ class InteractionDatabase:
         new_id[order] = np.arange(len(first))
         percept = torch.from_numpy(new_id[inverse.ravel()])
         kept = first[order]
+        counts = torch.zeros(len(kept), dtype=torch.long)
         return replace(
             self,
             presence=PackedPresence(packed[kept], self.n_features),
             obs=percept[self.obs],
             next_obs=percept[self.next_obs],
             positions=None if self.positions is None else self.positions[kept],
+            counts=counts.index_add_(0, percept, self.percept_counts),
             _coo=None,
         )
 
@@ -464,6 +482,7 @@ class InteractionDatabase:
             "present": torch.stack([rows, cols]).int(),
             **{k: getattr(self, k) for k in ("obs", "actions", "rewards", "next_obs", "terminal")},
             "positions": None if self.positions is None else torch.from_numpy(self.positions),
+            "counts": self.counts,
             "occurrences": None
             if occ is None
             else {
@@ -485,6 +504,7 @@ class InteractionDatabase:
             ),
             **{k: state[k] for k in ("obs", "actions", "rewards", "next_obs", "terminal")},
             positions=None if state["positions"] is None else state["positions"].numpy(),
+            counts=state.get("counts"),  # files saved before counts held each percept once
             occurrences=None
             if occ is None
             else Occurrences(

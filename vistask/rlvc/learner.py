@@ -361,7 +361,7 @@ class RLVC:
             allowed = interchangeable(merged_q, tolerance)
         else:
             allowed = acceptable(merged_q, tolerance, DROP_VALUE_TOLERANCE * tolerance)
-        _, classes = self.structure.simplify(db.presence, allowed)
+        _, classes = self.structure.simplify(db.presence, allowed, db.counts)
         self._splits_since_compaction = 0
         self._no_compound.clear()  # class ids changed
         q = self.solve(db, classes)
@@ -387,7 +387,9 @@ class RLVC:
         start = time.perf_counter()
         # Classes that no percept of db is in go.
         _, classes = torch.unique(self.structure.classify(db.presence), return_inverse=True)
-        splits, groups = induced_splits(db.presence, classes, self.structure.selected_features)
+        splits, groups = induced_splits(
+            db.presence, classes, self.structure.selected_features, counts=db.counts
+        )
         # Classes that outgrew the BDD's memory budget regrow outside it: the tree has more
         # leaves than they had classes.
         self.structure = ClassBDD.from_splits(
@@ -471,7 +473,7 @@ class RLVC:
             cell_q[cell] = mean_q
             merged = merge_groups(cell_q, self._merge_tolerance(cell_q))[cell]
             tested = sorted(set().union(*(features for _, _, features in learned)))
-            splits, leaf_groups = induced_splits(db.presence, merged, tested)
+            splits, leaf_groups = induced_splits(db.presence, merged, tested, counts=db.counts)
             self.structure = ClassBDD.from_splits(
                 self.n_features, splits, leaf_groups, in_bdd=self.structure.in_bdd
             )
@@ -490,7 +492,7 @@ class RLVC:
 
         A percept's class then does not hang on every test of one path.
         """
-        self.seen = SeenPercepts.of(self.structure, db.presence)
+        self.seen = SeenPercepts.of(self.structure, db.presence, db.counts)
         return self
 
     def _compound_splits(

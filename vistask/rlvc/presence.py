@@ -181,7 +181,9 @@ class PackedPresence:
 
 
 def distinct_rows(
-    presence: PackedPresence | torch.Tensor, columns: Sequence[int]
+    presence: PackedPresence | torch.Tensor,
+    columns: Sequence[int],
+    counts: torch.Tensor | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The distinct rows of ``presence[:, columns]``, read ``ROWS_PER_CHUNK`` rows at a time.
 
@@ -191,11 +193,12 @@ def distinct_rows(
     Args:
         presence: (M, F) bool presence (``PackedPresence`` or a bool tensor).
         columns: the C columns read.
+        counts: (M,) long, the times each row was met (None: once each).
 
     Returns:
         bits (U, ceil(C / 8)) uint8, the distinct rows packed (``np.packbits``, big-endian
         bits); first (U,) the first row of each; inverse (M,) the distinct row of each row;
-        counts (U,) the rows of each.
+        counts (U,) int64, the times each was met.
 
     Example:
         >>> bits, first, inverse, counts = distinct_rows(torch.eye(3).bool()[[0, 1, 0]], [0, 1])
@@ -211,10 +214,10 @@ def distinct_rows(
         or [np.zeros((0, -(-len(columns) // 8)), np.uint8)]
     )
     rows_as_bytes = packed.view(np.dtype((np.void, packed.shape[1]))).ravel()  # 20x np.unique(axis)
-    _, first, inverse, counts = np.unique(
-        rows_as_bytes, return_index=True, return_inverse=True, return_counts=True
-    )
-    return packed[first], first, inverse.ravel(), counts
+    _, first, inverse = np.unique(rows_as_bytes, return_index=True, return_inverse=True)
+    inverse = inverse.ravel()
+    met = None if counts is None else counts.cpu().numpy()
+    return packed[first], first, inverse, np.bincount(inverse, met).astype(np.int64)
 
 
 __all__ = ["PackedBits", "PackedPresence", "distinct_rows"]

@@ -49,11 +49,15 @@ class SeenPercepts:
 
     @classmethod
     def of(
-        cls, structure: ClassTree | ClassBDD, presence: torch.Tensor | PackedPresence
+        cls,
+        structure: ClassTree | ClassBDD,
+        presence: torch.Tensor | PackedPresence,
+        counts: torch.Tensor | None = None,
     ) -> SeenPercepts:
-        """The seen patterns of ``presence`` (M, F) bool, classified by ``structure``."""
+        """The seen patterns of ``presence`` (M, F) bool, met ``counts`` (M,) times each
+        (None: once), classified by ``structure``."""
         features = torch.as_tensor(structure.selected_features, dtype=torch.long)
-        bits, first, inverse, counts = distinct_rows(presence, features)  # rows in order
+        bits, first, inverse, counts = distinct_rows(presence, features, counts)  # rows in order
         classes = structure.classify(presence)
         first, inverse = torch.from_numpy(first), torch.from_numpy(inverse)
         if not torch.equal(classes, classes[first][inverse]):
