@@ -233,8 +233,8 @@ class ClassBDD:
         packed, _, inverse, weight = distinct_rows(presence, tested, counts)
         bits = np.asfortranarray(np.unpackbits(packed, axis=1, count=len(tested)).view(bool))
         rows, columns = bits.nonzero()
-        counts = np.bincount(columns, weights=weight[rows], minlength=len(tested))
-        order = sorted(self._selected, key=lambda f: (counts[column[f]], f))
+        met = np.bincount(columns, weights=weight[rows], minlength=len(tested))
+        order = sorted(self._selected, key=lambda f: (met[column[f]], f))
         allowed = np.eye(self.n_classes, dtype=bool) if allowed is None else allowed.numpy()
         dropped, classes = _droppable(bits, self._compiled(column), column[order], allowed)
         dropped = [tested[j] for j in dropped]

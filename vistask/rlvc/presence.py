@@ -187,8 +187,8 @@ def distinct_rows(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The distinct rows of ``presence[:, columns]``, read ``ROWS_PER_CHUNK`` rows at a time.
 
-    Percepts seen many times are one row each: place navigation's 600,000 interactions show
-    at most its bank of views. Rows are compared as packed bytes.
+    Percepts equal on these columns, which a class structure testing them treats alike, are
+    one row. Rows are compared as packed bytes.
 
     Args:
         presence: (M, F) bool presence (``PackedPresence`` or a bool tensor).
