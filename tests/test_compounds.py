@@ -285,18 +285,26 @@ def test_propose_keeps_only_relations_that_could_split():
 def test_added_compounds_extend_the_interaction_pairs_as_a_fresh_database_finds_them():
     """The split search sums each feature's pairs in their order: the cached pairs, extended
     by the compounds' pairs, hold every feature's pairs in the order that a database built
-    with the compounds already in it has them."""
+    with the compounds already in it has them; so do the percept-action pairs."""
     db = relation_database(n=200, word_agrees=0.8)
     db = db.take(torch.from_numpy(np.random.default_rng(1).integers(0, 200, 300)))
     db.interaction_features()  # cached before the compounds come
+    db.percept_action_features()
     compounds = [Compound(0, 1, (5.0, 0.0), 1.0), Compound(2, 7, (0.0, 3.0), 40.0)]
     db.add_compounds(compounds[:1])
     db.add_compounds(compounds[1:])  # a compound of a compound
+    fresh = replace(db, _coo=None, _pairs=None)
     rows, features = db.interaction_features()
-    fresh_rows, fresh_features = replace(db, _coo=None).interaction_features()
+    fresh_rows, fresh_features = fresh.interaction_features()
+    pairs, pair_rows, pair_features = db.percept_action_features()
+    fresh_pairs, fresh_pair_rows, fresh_pair_features = fresh.percept_action_features()
+    assert torch.equal(pairs, fresh_pairs)
     assert set(features[features >= 7].tolist()) == {7, 8}
     for f in range(db.n_features):
         assert torch.equal(rows[features == f], fresh_rows[fresh_features == f]), f
+        assert torch.equal(
+            pair_rows[pair_features == f], fresh_pair_rows[fresh_pair_features == f]
+        ), f
 
 
 def test_databases_sharing_presence_add_compounds_without_touching_each_other():

@@ -175,6 +175,36 @@ def test_split_search_in_blocks_of_groups_gives_the_one_tables_splits(monkeypatc
     assert whole and find_splits(*args) == whole
 
 
+def test_split_search_over_percept_action_pairs_finds_the_splits_of_every_interaction():
+    rng = np.random.default_rng(1)
+    n, m = 3000, 50
+    presence = torch.from_numpy(rng.random((m, 12)) < 0.4)
+    obs, actions = torch.from_numpy(rng.integers(0, m, n)), torch.from_numpy(rng.integers(0, 3, n))
+    zeros = torch.zeros(n)
+    db = InteractionDatabase(presence, obs, actions, zeros.double(), obs.roll(1), zeros.bool())
+    states = torch.from_numpy(rng.integers(0, 4, m))[obs]  # a class is a set of percepts
+    deltas = torch.from_numpy(rng.normal(0, 1, n)) + 2.0 * (presence[obs, 3] & (actions == 1))
+    pairs, rows, features = db.percept_action_features()
+    assert len(torch.unique(pairs)) <= 3 * m
+    for i in rng.integers(0, n, 20):  # each interaction's pair shows its percept's features
+        assert torch.equal(features[rows == pairs[i]], torch.nonzero(presence[obs[i]]).flatten())
+    # Features 12 and 13 copy feature 3 and its complement: splits equal but for rounding,
+    # which the first in feature order wins as over interactions.
+    presence = torch.cat([presence, presence[:, 3:4], ~presence[:, 3:4]], 1)
+    db = replace(db, presence=presence, _pairs=None)
+    pairs, rows, features = db.percept_action_features()
+    args = (states, actions, deltas, 4, 3, 14)
+    each = find_splits(*db.interaction_features(), *args)
+    once = find_splits(rows, features, *args, pairs=pairs)
+    assert len(each) >= 3 and any(s.feature == 3 for s in each)
+    assert once == each  # the same splits, reductions and p-values to the last bit
+    # The search reads pairs where interactions repeat them, else the interactions.
+    assert torch.equal(db.split_rows()[0], pairs)
+    chain = synthetic_chain()
+    no_pairs, rows, features = chain.split_rows()
+    assert no_pairs is None and (rows, features) == chain.interaction_features()  # the cached
+
+
 def test_value_iteration_matches_a_hand_solved_mdp():
     # Two states; in s0, action 1 moves to s1 (reward 0); in s1, action 0 ends with reward 10.
     # Other actions stay put with reward 0. Q*(s1, 0) = 10, Q*(s0, 1) = 0.5 * 10 = 5 (gamma 0.5).

@@ -4,7 +4,9 @@ Interactions (x_t, a_t, r_{t+1}, x_{t+1}, terminal) are stored as indices into a
 unique percepts, each percept as a row of a feature-presence matrix held as bits. Feature
 extraction, the dominant cost, runs once per percept. The split search reads the database as
 a sparse (interaction, feature) COO list, so that per-class sums over all features are a few
-scatter-adds (sparse products) instead of dense (interactions x features) products.
+scatter-adds (sparse products) instead of dense (interactions x features) products; where the
+interactions repeat their (percept, action) pairs, as views drawn from a bank do, it reads
+each distinct pair once.
 """
 
 from __future__ import annotations
@@ -314,6 +316,7 @@ class InteractionDatabase:
     occurrences: Occurrences | None = None
     counts: torch.Tensor | None = None
     _coo: tuple[torch.Tensor, torch.Tensor] | None = field(default=None, repr=False)
+    _pairs: tuple[torch.Tensor, ...] | None = field(default=None, repr=False)
 
     def __post_init__(self) -> None:
         if isinstance(self.presence, torch.Tensor):
@@ -465,12 +468,15 @@ class InteractionDatabase:
             positions=None if self.positions is None else self.positions[kept],
             counts=counts.index_add_(0, percept, self.percept_counts),
             _coo=None,
+            _pairs=None,
         )
 
     def take(self, index: torch.Tensor) -> InteractionDatabase:
         """The interactions ``index`` (N',) long, repeats allowed, over the same percepts."""
         columns = ("obs", "actions", "rewards", "next_obs", "terminal")
-        return replace(self, **{k: getattr(self, k)[index] for k in columns}, _coo=None)
+        return replace(
+            self, **{k: getattr(self, k)[index] for k in columns}, _coo=None, _pairs=None
+        )
 
     def state_dict(self) -> dict:
         """Plain tensors for a checkpoint; presence as its (2, nnz) nonzero indices (a percept
@@ -536,6 +542,15 @@ class InteractionDatabase:
                 torch.cat([self._coo[0], rows]),
                 torch.cat([self._coo[1], features + first]),
             )
+        if self._pairs is not None:
+            pair, percept, rows, features = self._pairs
+            more_rows, more_features = interaction_pairs(added, percept)
+            self._pairs = (
+                pair,
+                percept,
+                torch.cat([rows, more_rows]),
+                torch.cat([features, more_features + first]),
+            )
 
     def interaction_features(self) -> tuple[torch.Tensor, torch.Tensor]:
         """Sparse (interaction, feature) pairs of x_t: rows (nnz,), features (nnz,), cached;
@@ -543,6 +558,38 @@ class InteractionDatabase:
         if self._coo is None:
             self._coo = interaction_pairs(self.presence, self.obs)
         return self._coo
+
+    def split_rows(self) -> tuple[torch.Tensor | None, torch.Tensor, torch.Tensor]:
+        """The rows that the split search reads, with their sparse features: the distinct
+        (x_t, action) pairs (``percept_action_features``) where the interactions repeat them
+        twice or more on average, else the interactions (``interaction_features``; pair None).
+        """
+        if self.actions.ndim == 1 and (
+            self._pairs is not None or 2 * len(torch.unique(self._pair_keys())) <= len(self)
+        ):
+            return self.percept_action_features()
+        return None, *self.interaction_features()
+
+    def percept_action_features(self) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Each distinct (x_t, action) pair of the interactions once, with the sparse features
+        of its percept, cached (discrete actions).
+
+        Returns:
+            pair (N,) long, the pair of each interaction; rows (nnz,) and features (nnz,), the
+            features of each pair's percept, by pair then feature.
+        """
+        if self._pairs is None:
+            distinct, pair = torch.unique(self._pair_keys(), return_inverse=True)
+            percept = torch.zeros(len(distinct), dtype=torch.long).scatter_(0, pair, self.obs)
+            self._pairs = (pair, percept, *interaction_pairs(self.presence, percept))
+        pair, _, rows, features = self._pairs
+        return pair, rows, features
+
+    def _pair_keys(self) -> torch.Tensor:
+        if self.actions.ndim != 1:
+            raise ValueError("percept-action pairs need discrete actions, got (N, m) actions")
+        low = int(self.actions.min())
+        return self.obs * (int(self.actions.max()) - low + 1) + self.actions - low
 
 
 def interaction_pairs(

@@ -247,7 +247,7 @@ class RLVC:
 
     def _learn(self, db, max_stages, progress, on_stage, threads) -> RLVC:
         self._no_compound.clear()
-        rows, features = db.interaction_features()
+        pairs, rows, features = db.split_rows()
         classes = self.structure.classify(db.presence)
         bar = tqdm(range(max_stages), desc="RLVC stages", disable=not progress, leave=False)
         for _ in bar:
@@ -274,6 +274,7 @@ class RLVC:
                 # Compaction aims at few features: a feature the classes already test
                 # splits a class when it does half as well as the class's best split.
                 prefer=self._tested_mask() if self.compaction else None,
+                pairs=pairs,
             )
             if self.use_compounds:
                 compound_start = time.perf_counter()
@@ -281,7 +282,7 @@ class RLVC:
                 if made:
                     won = {split.state for split in made}
                     splits = [split for split in splits if split.state not in won] + made
-                    rows, features = db.interaction_features()
+                    pairs, rows, features = db.split_rows()
                 self.timing.compounds += time.perf_counter() - compound_start
             for split in splits:
                 self._no_compound.discard(split.state)

@@ -22,6 +22,7 @@ import torch
 from scipy import stats
 
 from vistask.checks import checked
+from vistask.features.compounds import concatenated_ranges
 
 
 @checked
@@ -107,14 +108,15 @@ def welch_splits(
 
 
 # (group, feature) cells whose counts a split search holds at once: its tables take about
-# 30 bytes a cell, so this bounds them near 500 MB however many classes the data carry.
-TABLE_CELLS = 1 << 24
+# 30 bytes a cell, so this bounds them near 130 MB however many classes the data carry.
+TABLE_CELLS = 1 << 22
 
 
 def candidate_moments(
     group_row: torch.Tensor,
     features: torch.Tensor,
-    deltas: torch.Tensor,
+    rows: torch.Tensor,
+    moments: tuple[torch.Tensor, torch.Tensor, torch.Tensor],
     n_g: torch.Tensor,
     n_features: int,
     min_count: int,
@@ -123,10 +125,11 @@ def candidate_moments(
     and their count, sum and sum of squares of TD errors where the feature is present.
 
     Args:
-        group_row: (nnz,) long row of each (interaction, feature) pair's group, in 0..G
-            (G: a group that cannot split, never counted).
+        group_row: (nnz,) long row of each (row, feature) pair's group, in 0..G (G: a group
+            that cannot split, never counted).
         features: (nnz,) long feature of each pair.
-        deltas: (nnz,) float64 TD error of each pair's interaction.
+        rows: (nnz,) long row of each pair.
+        moments: (R,) float64 count, sum and sum of squares of the TD errors of each row.
         n_g: (G,) float64 interactions of each group.
         n_features: F.
         min_count: interactions needed on each side.
@@ -152,14 +155,79 @@ def candidate_moments(
         size = n_rows * n_features
         # Pairs of the groups that cannot split land in one row past the block's, cut off.
         key = (group_row[pairs] - first) * n_features + features[pairs]
-        d = deltas[pairs]
-        n_f = torch.bincount(key, minlength=size + n_features)[:size].view(n_rows, n_features)
-        room = (n_g[first : first + n_rows].long() - min_count)[:, None]
+        row = rows[pairs]
+        n_f, s1, s2 = (
+            torch.zeros(size + n_features, dtype=torch.float64).index_add_(0, key, m[row])
+            for m in moments
+        )
+        n_f = n_f[:size].view(n_rows, n_features)
+        room = n_g[first : first + n_rows, None] - min_count
         cell = torch.nonzero(((n_f >= min_count) & (n_f <= room)).flatten()).flatten()
-        s1 = torch.zeros(size + n_features, dtype=torch.float64).index_add_(0, key, d)[cell]
-        s2 = torch.zeros(size + n_features, dtype=torch.float64).index_add_(0, key, d * d)[cell]
-        found.append((cell + first * n_features, n_f.flatten()[cell].double(), s1, s2))
+        found.append((cell + first * n_features, n_f.flatten()[cell], s1[cell], s2[cell]))
     return tuple(torch.cat(parts) for parts in zip(*found, strict=True))
+
+
+# Splits of a class whose SSE reductions differ by less than this share of their group's sum
+# of squared TD errors are summed again over interactions: rounding reaches about 1e-14.
+TIE_TOLERANCE = 1e-8
+
+
+def near_ties(
+    state: torch.Tensor, reduction: torch.Tensor, significant: torch.Tensor, scale: torch.Tensor
+) -> torch.Tensor:
+    """Candidates (K,) of one class (``state``) whose significant ``reduction`` lies within
+    ``TIE_TOLERANCE`` times ``scale`` (K,) of another's: their indices, ascending."""
+    k = torch.nonzero(significant).flatten()
+    k = k[torch.from_numpy(np.lexsort((reduction[k].numpy(), state[k].numpy())))]
+    gap = reduction[k[1:]] - reduction[k[:-1]]
+    tie = (state[k[1:]] == state[k[:-1]]) & (
+        gap <= TIE_TOLERANCE * torch.maximum(scale[k[1:]], scale[k[:-1]])
+    )
+    return torch.unique(torch.cat([k[:-1][tie], k[1:][tie]]))
+
+
+def interaction_moments(
+    cells: torch.Tensor,
+    pair_group: torch.Tensor,
+    pairs: torch.Tensor,
+    rows: torch.Tensor,
+    features: torch.Tensor,
+    deltas: torch.Tensor,
+    n_features: int,
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Count, sum and sum of squares (K,) float64 of the TD errors in (group row, feature)
+    ``cells`` (K,), added interaction by interaction in their order, as a search whose rows
+    are interactions adds them.
+
+    Args:
+        cells: (K,) long, ``group row * F + feature``, ascending.
+        pair_group: (P,) long group row of each pair. pairs: (N,) long pair of each
+            interaction. rows, features: (nnz,) the (pair, feature) presence.
+        deltas: (N,) float64. n_features: F.
+    """
+    if len(cells) == 0:
+        return tuple(torch.zeros(0, dtype=torch.float64) for _ in range(3))
+    wanted = torch.zeros(n_features, dtype=torch.bool)
+    wanted[cells % n_features] = True
+    near = torch.nonzero(wanted[features]).flatten()
+    key = pair_group[rows[near]] * n_features + features[near]
+    at = torch.searchsorted(cells, key).clamp_max(len(cells) - 1)
+    hit = cells[at] == key
+    # The cells of each pair, then of each interaction, by interaction: each cell's in order.
+    pair, cell = rows[near][hit], at[hit]
+    by_pair = torch.argsort(pair, stable=True)
+    pair, cell = pair[by_pair], cell[by_pair]
+    count = torch.bincount(pair, minlength=len(pair_group))
+    start = torch.cumsum(count, 0) - count
+    inter = torch.nonzero(count[pairs]).flatten()
+    per = count[pairs[inter]]
+    i = torch.repeat_interleave(inter, per)
+    k = cell[torch.from_numpy(concatenated_ranges(start[pairs[inter]].numpy(), per.numpy()))]
+    d = deltas[i]
+    return tuple(
+        torch.zeros(len(cells), dtype=torch.float64).index_add_(0, k, v)
+        for v in (torch.ones_like(d), d, d * d)
+    )
 
 
 @checked
@@ -176,12 +244,14 @@ def find_splits(
     min_count: int = 10,
     prefer: torch.Tensor | None = None,
     prefer_share: float = 0.5,
+    pairs: torch.Tensor | None = None,
 ) -> list[Split]:
     """Best significant split of every class.
 
     Args:
         rows, features: (nnz,) sparse pairs "feature ``features[k]`` present in the percept of
-            interaction ``rows[k]``" (``InteractionDatabase.interaction_features``).
+            interaction ``rows[k]``" (``InteractionDatabase.interaction_features``), or of
+            percept-action pair ``rows[k]`` when ``pairs`` is given.
         states, actions, deltas: (N,) class of x_t, action, TD error of each interaction.
         n_states, n_actions, n_features: sizes S, A, F.
         alpha: significance level of Welch's two-sample t-test.
@@ -190,6 +260,9 @@ def find_splits(
             significant preferred feature when that reduces the SSE by at least
             ``prefer_share`` of the class's best significant split (None: the best split).
         prefer_share: see ``prefer``.
+        pairs: (N,) long, the distinct (x_t, action) pair of each interaction, which ``rows``
+            index (``InteractionDatabase.percept_action_features``): the search then reads each
+            pair once however often it was met. None: ``rows`` index interactions.
 
     Returns:
         One ``Split`` per class whose best split is significant, by decreasing reduction.
@@ -213,18 +286,38 @@ def find_splits(
     compact = torch.full((groups,), len(active), dtype=torch.long)
     compact[active] = torch.arange(len(active))
     n_g, s1_g, s2_g = n_g[active], s1_g[active], s2_g[active]
+    if pairs is None:
+        row_group, moments = group, (torch.ones_like(deltas), deltas, deltas * deltas)
+    else:
+        n_pairs = int(pairs.max()) + 1
+        row_group = torch.zeros(n_pairs, dtype=torch.long).scatter_(0, pairs, group)
+        moments = group_moments(pairs, deltas, n_pairs)
+    row_group = compact[row_group]
     candidate, n_f, s1_f, s2_f = candidate_moments(
-        compact[group][rows], features, deltas[rows], n_g, n_features, min_count
+        row_group[rows], features, rows, moments, n_g, n_features, min_count
     )
     if len(candidate) == 0:
         return []
     cg, cf = candidate // n_features, candidate % n_features  # group row, feature
     n_gc, s1_gc, s2_gc = n_g[cg], s1_g[cg], s2_g[cg]
 
-    reduction, p, significant = welch_splits(
-        n_f, s1_f, s2_f, n_gc - n_f, s1_gc - s1_f, s2_gc - s2_f, alpha
-    )
     state_of, action_of = active // n_actions, active % n_actions
+
+    def score(k: torch.Tensor | slice) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        n, s1, s2 = n_gc[k], s1_gc[k], s2_gc[k]
+        return welch_splits(n_f[k], s1_f[k], s2_f[k], n - n_f[k], s1 - s1_f[k], s2 - s2_f[k], alpha)
+
+    reduction, p, significant = score(slice(None))
+    if pairs is not None:
+        # Sums over pairs round otherwise than sums over interactions: near-equal splits of a
+        # class (features with the same presence split alike) are summed again interaction by
+        # interaction, so that the first in (action, feature) order wins as it does there.
+        resum = near_ties(state_of[cg], reduction, significant, s2_gc)
+        exact = interaction_moments(
+            candidate[resum], row_group, pairs, rows, features, deltas, n_features
+        )
+        n_f[resum], s1_f[resum], s2_f[resum] = exact
+        reduction[resum], p[resum], significant[resum] = score(resum)
 
     # Eq. (7) among the significant candidates: the purest split of every class; among equal
     # ones (features with the same presence split alike), the first in (action, feature) order.
@@ -237,7 +330,14 @@ def find_splits(
         )
         first = prefer[cf[best]] & (reduction[best] >= prefer_share * top[state])
         best = torch.cat([best[first], best[~first]])  # still by reduction on either side
-    chosen = best[first_in_group(state_of[cg[best]], n_states)].tolist()  # one per class
+    chosen = best[first_in_group(state_of[cg[best]], n_states)]  # one per class
+    if pairs is not None:  # the chosen splits' figures as summed over interactions
+        exact = interaction_moments(
+            candidate[chosen], row_group, pairs, rows, features, deltas, n_features
+        )
+        n_f[chosen], s1_f[chosen], s2_f[chosen] = exact
+        reduction[chosen], p[chosen], _ = score(chosen)
+    chosen = chosen.tolist()
     splits = [
         Split(
             int(state_of[cg[k]]),
