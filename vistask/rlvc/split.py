@@ -307,17 +307,21 @@ def find_splits(
         n, s1, s2 = n_gc[k], s1_gc[k], s2_gc[k]
         return welch_splits(n_f[k], s1_f[k], s2_f[k], n - n_f[k], s1 - s1_f[k], s2 - s2_f[k], alpha)
 
+    def summed_by_interaction(k: torch.Tensor) -> tuple[torch.Tensor, ...]:
+        k = torch.sort(k).values  # candidates ascend with their cells
+        moments = interaction_moments(
+            candidate[k], row_group, pairs, rows, features, deltas, n_features
+        )
+        n_f[k], s1_f[k], s2_f[k] = moments
+        return k, *score(k)
+
     reduction, p, significant = score(slice(None))
     if pairs is not None:
         # Sums over pairs round otherwise than sums over interactions: near-equal splits of a
         # class (features with the same presence split alike) are summed again interaction by
         # interaction, so that the first in (action, feature) order wins as it does there.
-        resum = near_ties(state_of[cg], reduction, significant, s2_gc)
-        exact = interaction_moments(
-            candidate[resum], row_group, pairs, rows, features, deltas, n_features
-        )
-        n_f[resum], s1_f[resum], s2_f[resum] = exact
-        reduction[resum], p[resum], significant[resum] = score(resum)
+        k, *scores = summed_by_interaction(near_ties(state_of[cg], reduction, significant, s2_gc))
+        reduction[k], p[k], significant[k] = scores
 
     # Eq. (7) among the significant candidates: the purest split of every class; among equal
     # ones (features with the same presence split alike), the first in (action, feature) order.
@@ -332,11 +336,8 @@ def find_splits(
         best = torch.cat([best[first], best[~first]])  # still by reduction on either side
     chosen = best[first_in_group(state_of[cg[best]], n_states)]  # one per class
     if pairs is not None:  # the chosen splits' figures as summed over interactions
-        exact = interaction_moments(
-            candidate[chosen], row_group, pairs, rows, features, deltas, n_features
-        )
-        n_f[chosen], s1_f[chosen], s2_f[chosen] = exact
-        reduction[chosen], p[chosen], _ = score(chosen)
+        k, *scores = summed_by_interaction(chosen)
+        reduction[k], p[k] = scores[:2]
     chosen = chosen.tolist()
     splits = [
         Split(
