@@ -564,9 +564,7 @@ class InteractionDatabase:
         (x_t, action) pairs (``percept_action_features``) where the interactions repeat them
         twice or more on average, else the interactions (``interaction_features``; pair None).
         """
-        if self.actions.ndim == 1 and (
-            self._pairs is not None or 2 * len(torch.unique(self._pair_keys())) <= len(self)
-        ):
+        if self.actions.ndim == 1 and 2 * len(torch.unique(self._pair_keys())) <= len(self):
             return self.percept_action_features()
         return None, *self.interaction_features()
 
