@@ -533,24 +533,14 @@ class InteractionDatabase:
         new.feature = new.feature - first
         added = new.presence(len(compounds))
         self.presence = self.presence.with_columns(added)
+        # The compounds' pairs go after the others, not in row order: the split search sums
+        # each feature's pairs in their order, and each feature's pairs keep theirs. Finding
+        # every pair again costs a pass over the whole (M, F) presence.
         if self._coo is not None:
-            # The compounds' pairs go after the others, not in row order: the split search
-            # sums each feature's pairs in their order, and each feature's pairs keep theirs.
-            # Finding every pair again costs a pass over the whole (M, F) presence.
-            rows, features = interaction_pairs(added, self.obs)
-            self._coo = (
-                torch.cat([self._coo[0], rows]),
-                torch.cat([self._coo[1], features + first]),
-            )
+            self._coo = _with_pairs_of(added, self.obs, first, *self._coo)
         if self._pairs is not None:
             pair, percept, rows, features = self._pairs
-            more_rows, more_features = interaction_pairs(added, percept)
-            self._pairs = (
-                pair,
-                percept,
-                torch.cat([rows, more_rows]),
-                torch.cat([features, more_features + first]),
-            )
+            self._pairs = (pair, percept, *_with_pairs_of(added, percept, first, rows, features))
 
     def interaction_features(self) -> tuple[torch.Tensor, torch.Tensor]:
         """Sparse (interaction, feature) pairs of x_t: rows (nnz,), features (nnz,), cached;
@@ -588,6 +578,15 @@ class InteractionDatabase:
             raise ValueError("percept-action pairs need discrete actions, got (N, m) actions")
         low = int(self.actions.min())
         return self.obs * (int(self.actions.max()) - low + 1) + self.actions - low
+
+
+def _with_pairs_of(
+    added: torch.Tensor, obs: torch.Tensor, first: int, rows: torch.Tensor, features: torch.Tensor
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """The sparse pairs ``rows``, ``features`` (nnz,) of percepts ``obs``, followed by those of
+    the ``added`` (M, C) columns, numbered from ``first``."""
+    more_rows, more_features = interaction_pairs(added, obs)
+    return torch.cat([rows, more_rows]), torch.cat([features, more_features + first])
 
 
 def interaction_pairs(
