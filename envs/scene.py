@@ -95,10 +95,16 @@ ROBOSUITE_CAMERAS = ("frontview", "birdview", "agentview", "sideview")
 
 
 def table_arena():
-    """Robosuite's table arena with the table top at ``TABLE_TOP_Z`` over the world origin."""
+    """Robosuite's table arena with the table top at ``TABLE_TOP_Z`` over the world origin,
+    its rolling friction in force."""
     from robosuite.models.arenas import TableArena  # importing robosuite takes seconds
 
-    return TableArena(table_full_size=TABLE_SIZE, table_offset=TABLE_CENTRE)
+    arena = TableArena(table_full_size=TABLE_SIZE, table_offset=TABLE_CENTRE)
+    # robosuite gives the table a rolling friction but MuJoCo's default 3 contact dimensions,
+    # which ignore it: a round object then rocks and rolls for seconds after it is placed,
+    # away from the pose the robot saw (docs/results/grasps.md, "Objects at rest").
+    arena.table_collision.set("condim", "6")
+    return arena
 
 
 def add_cameras(arena, specs: Iterable[CameraSpec]) -> None:

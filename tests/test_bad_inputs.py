@@ -82,6 +82,7 @@ def test_tabular_hyperparameters_out_of_range_are_refused(kwargs, name):
         ("learn_grasps.py", ["--cycles", "-1"], "--cycles"),
         ("learn_grasps.py", ["--c-rel", "nan"], "--c-rel"),
         ("learn_grasps.py", ["--reliability", "-1"], "--reliability"),
+        ("bench_grasp_objects.py", ["--trials", "0"], "--trials"),
         ("bench_features.py", ["--words", "0"], "--words"),
         ("compare_baselines.py", ["--seeds", "0"], "--seeds"),
         ("compare_baselines.py", ["--workers", "0"], "--workers"),

@@ -24,7 +24,13 @@ from vistask.grasp import (
     scripted_teacher_grasps,
     transform_density,
 )
-from vistask.grasp.importance import RELIABILITY_WIDTH
+from vistask.grasp.importance import (
+    RANKING_WIDTHS,
+    RELIABILITY_WIDTH,
+    ranking_auc,
+    validated_ranking_width,
+)
+from vistask.grasp.reach import draw_candidates
 from vistask.se3 import SE3KDE, compose, identity_poses, make_poses, random_poses
 from vistask.vision import Patches
 
@@ -265,6 +271,13 @@ def test_reachability_filter() -> None:
         out[None], Workspace(floor_z=0.8, base=(-0.56, 0.0, 0.9), max_approach_out=0.5)
     )
     assert not folded.any()
+    # 2 cm above the table, its closing axis tilted 45 degrees: the open fingers' lower tip
+    # (4 cm out along that axis) would reach 8 mm into the table.
+    tilted = _pose([0.0, 0.0, 0.82], [2.9025, 0.0, 1.2022])  # down, then 45 degrees about y
+    level = _pose([0.0, 0.0, 0.82], [math.pi, 0.0, 0.0])
+    fingers = Workspace(floor_z=0.8, base=(-0.56, 0.0, 0.9), opening=0.08)
+    assert reachable(torch.stack([tilted, level]), ws).tolist() == [True, True]
+    assert reachable(torch.stack([tilted, level]), fingers).tolist() == [False, True]
     density = SE3KDE(torch.stack([down, up]), sigma_t=0.001, sigma_r=0.01)
     _, world, found = draw_reachable(density, identity_poses(8), ws, _gen(12))
     assert found.all() and reachable(world, ws).all()
@@ -363,29 +376,67 @@ def test_best_of_k_draws_pick_the_likelier_grasps() -> None:
         draw_reachable(density, identity_poses(2), None, _gen(13), max_draws=0)
 
 
-def test_best_of_k_by_success_rate_picks_the_grasps_that_succeed_again() -> None:
+class _ZoneRunner:
+    """Objects at the origin; a grasp within 3 cm of ``good`` always succeeds, any other one
+    in a third of the trials."""
+
+    num_envs = 20
+
+    def __init__(self, good: torch.Tensor) -> None:
+        self.good, self.draws = good, _gen(41)
+
+    def reset(self, seeds) -> torch.Tensor:
+        return identity_poses(self.num_envs)
+
+    def execute(self, grasps: torch.Tensor):
+        near = (grasps[:, :3] - self.good[:3]).norm(dim=-1) < 0.03
+        return near | (torch.rand(len(grasps), generator=self.draws) < 1 / 3), {}
+
+
+def test_best_of_k_ranks_by_success_rates_where_the_last_cycle_validates_them() -> None:
     """Grasps drawn mostly at a shaky place (one success in three), some at a sure one: the
-    likeliest of 10 draws lies at the shaky place, the one the trials rate best at the sure."""
+    likeliest of 10 draws lies at the shaky place; the learner's ranking, validated on its
+    second cycle, picks the sure one. Where the last cycle's outcomes turn against the
+    earlier trials' rates, the ranking keeps the first candidate: a plain sample."""
     sure, shaky = _pose([0.0, 0.0, 0.0], [0.0, 0.0, 0.0]), _pose([0.08, 0.0, 0.0], [0.0, 0.0, 0.0])
     proposal = SE3KDE(torch.stack([sure, shaky]), torch.tensor([0.15, 0.85]), 0.01, 0.1)
     learner = GraspLearner(proposal, sigma_t=0.003, sigma_r=0.08)
-    grasps = proposal.sample(800, _gen(40))
-    at_sure = (grasps[:, :3] - sure[:3]).norm(dim=-1) < 0.03
-    success = at_sure | (torch.rand(800, generator=_gen(41)) < 1 / 3)
-    learner.trials.add(grasps, success, cycle=0)
-    learner.proposals.append(proposal)
-    rates = learner.success_rates(torch.stack([sure, shaky]))
+    with pytest.raises(ValueError, match="no trials"):
+        learner.success_rates(sure[None], width=6.0)
+    assert learner.ranking_width is None  # nothing to validate on yet
+    runner = _ZoneRunner(sure)
+    for cycle in range(2):
+        learner.run_cycle(runner, 400, range(400 * cycle, 400 * (cycle + 1)), _gen(40 + cycle))
+    assert learner.ranking_width in RANKING_WIDTHS
+    rates = learner.rank(torch.stack([sure, shaky]))
     assert rates[0] > 0.9 and rates[1] < 0.5
     near_sure = lambda g: ((g[:, :3] - sure[:3]).norm(dim=-1) < 0.03).float().mean()  # noqa: E731
     poses = identity_poses(200)
     likeliest, _, _ = draw_reachable(proposal, poses, None, _gen(42), candidates=10)
-    best, _, _ = draw_reachable(
-        proposal, poses, None, _gen(42), candidates=10, score=learner.success_rates
-    )
+    best, _, _ = draw_reachable(proposal, poses, None, _gen(42), candidates=10, score=learner.rank)
     assert near_sure(likeliest) < 0.1
     assert near_sure(best) > 0.7  # 1 - 0.85^10 = 0.80 of the placements have a sure draw
-    with pytest.raises(ValueError, match="no trials"):
-        GraspLearner(proposal).success_rates(grasps[:2])
+
+    runner.good = shaky  # the last cycle contradicts the earlier trials
+    learner.run_cycle(runner, 400, range(800, 1200), _gen(43))
+    assert learner.ranking_width is None
+    kept, _, _ = draw_reachable(proposal, poses, None, _gen(42), candidates=10, score=learner.rank)
+    candidates, _, _ = draw_candidates(proposal, poses, None, _gen(42), candidates=10)
+    torch.testing.assert_close(kept, candidates[0])
+
+
+def test_ranking_auc_and_its_validation_split() -> None:
+    rates = torch.tensor([0.9, 0.8, 0.8, 0.1])
+    assert ranking_auc(rates, torch.tensor([True, True, False, False])) == 0.875
+    assert ranking_auc(rates, torch.tensor([False, False, True, True])) == 0.125
+    assert ranking_auc(rates, torch.ones(4, dtype=torch.bool)) is None
+    flat = SE3KDE(identity_poses(1), torch.ones(1), 1.0, 3.0)
+    trials = Trials()
+    trials.add(identity_poses(4), torch.tensor([True, False, True, True]), cycle=0)
+    # Held-out trials all succeeded: nothing to rank them by.
+    assert validated_ranking_width(trials, [flat, flat], 2, 1.0, 0.01, 0.1) is None
+    with pytest.raises(ValueError, match="validation"):
+        validated_ranking_width(trials, [flat, flat], 0, 1.0, 0.01, 0.1)
 
 
 def test_success_rates_for_ranking_see_the_failures_a_centimetre_around() -> None:
@@ -404,7 +455,7 @@ def test_success_rates_for_ranking_see_the_failures_a_centimetre_around() -> Non
     learner.proposals.append(flat)
     narrow = learner.success_rates(grasps[[0, 11]], width=RELIABILITY_WIDTH)
     assert narrow[0] > narrow[1]
-    rates = learner.success_rates(grasps[[0, 11]])
+    rates = learner.success_rates(grasps[[0, 11]], width=6.0)
     assert rates[0] < 0.3 < 0.8 < rates[1]
 
 

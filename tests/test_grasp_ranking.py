@@ -27,5 +27,7 @@ def test_ranked_success_picks_the_reachable_candidate_the_trials_rate_best() -> 
     result = ranked_success(learner, outcomes, widths=(2.0, 6.0))
     assert result["width 2"] == result["width 6"] == 0.5
     assert result["first"] == 0.5 and result["mean"] == 0.5 and result["any"] == 1.0
+    # Before a second cycle validates a ranking, the learner keeps the first reachable one.
+    assert result["validated"] == 0.0
     outcomes["ok"][1, 0] = True
     assert ranked_success(learner, outcomes, widths=(6.0,))["width 6"] == 1.0

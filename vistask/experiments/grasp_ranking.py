@@ -7,8 +7,9 @@ on the pose the run estimated there (recorded in ``trials.jsonl``). With all out
 any ranking of the candidates can be scored at once: here the success rates of the learning
 trials (``local_success_rates``) at several kernel widths, against picking the first
 candidate, the average candidate, and the best any ranking could do (some candidate
-succeeds). Trials are deterministic for a placement and a grasp, so the width the library
-uses (``RANKING_WIDTH``) scores what the run's own best-of-K evaluation measured.
+succeeds), and the learner's own choice (``GraspLearner.rank``: the width chosen on its last
+learning cycle, or the first candidate). Trials are deterministic for a placement and a grasp,
+so that choice scores what the run's own best-of-K evaluation measured.
 
 The outcomes are kept in ``<object>/candidates.pt`` of the run, so that ranking again costs
 no simulation.
@@ -24,14 +25,13 @@ from typing import Any
 import torch
 
 from vistask.experiments.grasps import BEST_OF, CHECKPOINT, EVAL_SEED_BASE
-from vistask.grasp.importance import RANKING_WIDTH
+from vistask.grasp.importance import RANKING_WIDTHS
 from vistask.grasp.learning import GraspLearner, trial_seeds
 from vistask.grasp.reach import draw_candidates
 from vistask.runs import write_summary
 from vistask.saving import load_state, save_state
 
 CANDIDATES = "GraspCandidateOutcomes"  # the kind of file of an object's candidate outcomes
-WIDTHS = (2.0, 4.0, RANKING_WIDTH, 8.0)
 
 
 def best_of_k_draws(
@@ -125,11 +125,12 @@ def candidate_outcomes(
 
 
 def ranked_success(
-    learner: GraspLearner, outcomes: dict[str, Any], widths: Sequence[float] = WIDTHS
+    learner: GraspLearner, outcomes: dict[str, Any], widths: Sequence[float] = RANKING_WIDTHS
 ) -> dict[str, float]:
     """Best-of-K success when the candidates are ranked by the learning trials' success rates
-    at each of ``widths`` (times the density's kernels), and three references: the first
-    candidate, the average candidate, and any candidate (the best a ranking could do)."""
+    at each of ``widths`` (times the density's kernels), the learner's own ranking
+    (``GraspLearner.rank``), and three references: the first candidate, the average
+    candidate, and any candidate (the best a ranking could do)."""
     local, ok, success = outcomes["local"], outcomes["ok"], outcomes["success"]
     rows = torch.arange(len(success))
     result = {}
@@ -137,6 +138,8 @@ def ranked_success(
         rates = learner.success_rates(local.reshape(-1, 7), width=k).view(ok.shape)
         pick = torch.where(ok, rates, -1.0).argmax(dim=1)
         result[f"width {k:g}"] = _rate(success[rows, pick])
+    own = learner.rank(local.reshape(-1, 7)).view(ok.shape)
+    result["validated"] = _rate(success[rows, torch.where(ok, own, -1.0).argmax(dim=1)])
     result["first"] = _rate(success[:, 0])
     result["mean"] = _rate(success)
     result["any"] = _rate(success.any(dim=1))

@@ -76,8 +76,9 @@ def learning_placements(seed: int, cycle: int, n: int) -> range:
 
 BEST_OF = 10
 """The "best of 10" evaluation executes the best of this many reachable draws: for the learned
-density the one whose neighbours among the learning trials succeeded most often
-(``GraspLearner.success_rates``), for the hypothesis the likeliest."""
+density the one whose neighbours among the learning trials succeeded most often, at the kernel
+width chosen on the last learning cycle, or the first where no width ranks that cycle's
+outcomes (``GraspLearner.rank``); for the hypothesis the likeliest."""
 
 HYPOTHESES = ("feature", "demo")
 POSE_SOURCES = ("estimate", "true")
@@ -355,8 +356,8 @@ class GraspExperiment:
                 empirical.save(out / "empirical.pt")
                 # As in learning: the hypothesis where the learned density reaches nothing.
                 # Its best of K: the candidate whose neighbours among the trials succeeded
-                # most often.
-                evaluate(empirical, "empirical", hypothesis, learner.success_rates)
+                # most often, where the last cycle validates such a ranking.
+                evaluate(empirical, "empirical", hypothesis, learner.rank)
             density_figure(
                 [("hypothesis", hypothesis), ("empirical", empirical)],
                 model.patches.positions,
@@ -454,6 +455,7 @@ def summarize_object(
         ``failure_reasons`` of those trials, ``fallback_share`` (of the learned density's
         sampled held-out trials, those drawn from the hypothesis because the learned density
         had no reachable grasp), ``learning_success``, ``trials_per_minute``,
+        ``ranking_width`` (``GraspLearner.ranking_width``: None, the best of 10 is a sample),
         ``empirical_particles``, ``empirical_ess`` and the per-cycle figures.
     """
     summary: dict[str, Any] = {
@@ -493,6 +495,7 @@ def summarize_object(
         trials_per_minute=60.0 * len(learner.trials) / learn_seconds,
         eval_trials_per_measure=experiment.eval_trials,
         learning_success=float(learner.trials.success.float().mean()),
+        ranking_width=learner.ranking_width,
         empirical_particles=0 if empirical is None else len(empirical),
         empirical_ess=0.0 if empirical is None else empirical.effective_sample_size(),
         cycles=[asdict(h) for h in learner.history],

@@ -19,6 +19,8 @@ from vistask.grasp.importance import (
     importance_weights,
     local_success_rates,
     mixture_proposal,
+    ranking_auc,
+    validated_ranking_width,
 )
 from vistask.grasp.learning import CycleStats, GraspLearner, evaluate_density, run_trials
 from vistask.grasp.reach import (
@@ -47,8 +49,10 @@ __all__ = [
     "instance_grasp_density",
     "local_success_rates",
     "mixture_proposal",
+    "ranking_auc",
     "reachable",
     "run_trials",
     "scripted_teacher_grasps",
     "transform_density",
+    "validated_ranking_width",
 ]

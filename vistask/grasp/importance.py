@@ -83,17 +83,10 @@ RELIABILITY_WIDTH = 2.0
 varies more smoothly than the particles are spread, and a wider neighbourhood holds enough
 trials to tell a reliable grasp from a lucky one."""
 
-RANKING_WIDTH = 6.0
-"""A best-of-K draw ranks its candidates (``GraspLearner.success_rates``) by the success rate
-of the trials within kernels this many times the density's: 12 mm and 0.3 rad for the
-densities ``learn_grasps.py`` learns. Success changes over centimetres (the box's grasps more
-than 1.5 cm off its centre along the fingers' closing axis failed in 0.28 of trials, those
-within 1 cm in 0.05); at ``RELIABILITY_WIDTH`` the median candidate has 1.6 trials around it,
-at 6 times 9.5. With all ten candidates on each of 100 held-out placements executed for nine
-learned densities, widths 2 to 6 rank equally well on average (0.973-0.977 best of 10) and
-move single objects by up to 0.04; width 6 is the one that keeps the box at 0.95 or more on
-seeds 0-2, width 8 drops the can to 0.91 (``scripts/bench_grasp_ranking.py``,
-docs/results.md)."""
+RANKING_WIDTHS = (2.0, 4.0, 6.0, 8.0)
+"""The kernel widths, in multiples of the density's, among which a learner chooses the one that
+ranks best-of-K candidates (``validated_ranking_width``): success rates within 4 mm to 16 mm
+and 0.1 to 0.4 rad of each candidate, for the densities ``learn_grasps.py`` learns."""
 
 
 RELIABILITY_POWER = 3.0
@@ -194,3 +187,64 @@ def empirical_density(
         k = RELIABILITY_WIDTH
         weights = weights * local_success_rates(trials, w, k * sigma_t, k * sigma_r) ** reliability
     return SE3KDE(trials.grasps[keep], weights, sigma_t, sigma_r, kernel=kernel)
+
+
+@checked
+def ranking_auc(rates: torch.Tensor, success: torch.Tensor) -> float | None:
+    """The chance that a successful trial rates above a failed one (ties count half): the
+    area under the ROC curve of ``rates`` (N,) as a predictor of ``success`` (N,) bool; 0.5
+    ranks by chance. None when the trials have no success or no failure to tell apart."""
+    wins, losses = rates[success].double(), rates[~success].double()
+    if len(wins) == 0 or len(losses) == 0:
+        return None
+    above = (wins[:, None] > losses[None, :]).double() + 0.5 * (wins[:, None] == losses[None, :])
+    return float(above.mean())
+
+
+@checked
+def validated_ranking_width(
+    trials: Trials,
+    proposals: Sequence[SE3KDE],
+    validation: int,
+    c_rel: float,
+    sigma_t: float,
+    sigma_r: float,
+    widths: Sequence[float] = RANKING_WIDTHS,
+) -> float | None:
+    """The kernel width whose success rates rank grasps best, chosen on a validation split.
+
+    The last ``validation`` trials are held out; the success rates of the earlier ones
+    (``local_success_rates``, kernels ``width`` times (``sigma_t``, ``sigma_r``)) rate the
+    held-out grasps, and each width is scored by how well it orders their outcomes
+    (``ranking_auc``).
+
+    Args:
+        trials: all trials, in the order they ran; the held-out ones were drawn from the last
+            of ``proposals`` (or the first, where it had none in reach).
+        proposals: the density each cycle drew from.
+        validation: how many of the last trials to hold out (the last cycle's).
+        c_rel, sigma_t, sigma_r: the learner's weight offset and kernel.
+        widths: the candidate widths.
+
+    Returns:
+        the width of the highest AUC, or None where none ranks the held-out outcomes better
+        than chance (AUC <= 0.5), or they are all successes or all failures: a best-of-K
+        draw then does best keeping its first candidate, a plain sample.
+    """
+    check_at_least(1, validation=validation)
+    fit = len(trials) - validation
+    if fit < 1 or len(proposals) < 2:
+        return None
+    earlier = Trials(trials.grasps[:fit], trials.success[:fit], trials.cycle[:fit])
+    grasps, success = trials.grasps[fit:], trials.success[fit:]
+    if not earlier.success.any() or success.all() or not success.any():
+        return None
+    w = trial_weights(earlier, proposals[:-1], c_rel)
+    scores = {
+        k: ranking_auc(
+            local_success_rates(earlier, w, k * sigma_t, k * sigma_r, at=grasps), success
+        )
+        for k in widths
+    }
+    best = max(scores, key=scores.get)
+    return best if scores[best] > 0.5 else None

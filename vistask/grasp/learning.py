@@ -46,12 +46,12 @@ import torch
 from vistask.checks import check_at_least, checked
 from vistask.grasp.importance import (
     EXPLORATION_POWER,
-    RANKING_WIDTH,
     RELIABILITY_POWER,
     Trials,
     empirical_density,
     local_success_rates,
     trial_weights,
+    validated_ranking_width,
 )
 from vistask.grasp.reach import TrialRunner, Workspace, draw_reachable
 from vistask.saving import load_state, save_state
@@ -144,19 +144,44 @@ class GraspLearner:
         # The trials are kept on the CPU; the learned densities live where the hypothesis does.
         return None if density is None else density.to(self.hypothesis.device)
 
-    def success_rates(self, grasps: torch.Tensor, width: float = RANKING_WIDTH) -> torch.Tensor:
+    def success_rates(self, grasps: torch.Tensor, width: float) -> torch.Tensor:
         """(M, 7) object-frame grasps -> (M,) the success rate of the trials around each.
 
         The kernel regression of ``local_success_rates`` over every trial so far (failures
-        too), with kernels ``width`` times the empirical density's. It ranks the candidates
-        of a best-of-K draw by how often grasps like them succeeded, where the density's
-        value ranks them by how many successes lie near them."""
+        too), with kernels ``width`` times the empirical density's: how often grasps like
+        them succeeded, where the density's value says how many successes lie near them."""
         if len(self.trials) == 0:
             raise ValueError("no trials yet: run a cycle before estimating success rates")
         w = trial_weights(self.trials, self.proposals, self.c_rel)
         sigma_t, sigma_r = width * self.sigma_t, width * self.sigma_r
         rates = local_success_rates(self.trials, w, sigma_t, sigma_r, at=grasps)
         return rates.to(grasps.device)
+
+    @property
+    def ranking_width(self) -> float | None:
+        """The kernel width (times the empirical density's) at which ``rank`` rates grasps:
+        the one whose success rates, from the trials of the cycles before the last, best
+        order the last cycle's outcomes (``validated_ranking_width``); None where none orders
+        them better than chance, or before two cycles."""
+        if len(self.history) < 2:
+            return None
+        return validated_ranking_width(
+            self.trials,
+            self.proposals,
+            self.history[-1].trials,
+            self.c_rel,
+            self.sigma_t,
+            self.sigma_r,
+        )
+
+    def rank(self, grasps: torch.Tensor) -> torch.Tensor:
+        """(M, 7) object-frame grasps -> (M,) ratings for choosing the best of K candidates
+        (``draw_reachable``'s ``score``): the success rates at ``ranking_width``, or zeros
+        where it is None, so that the choice keeps the first candidate, a plain sample."""
+        width = self.ranking_width
+        if width is None:
+            return torch.zeros(len(grasps), device=grasps.device)
+        return self.success_rates(grasps, width)
 
     def run_cycle(
         self,

@@ -35,8 +35,9 @@ class Workspace:
     """A geometric reachability filter for world-frame grasps (a cheap stand-in for IK).
 
     Attributes:
-        floor_z: height of the support surface; the gripper origin must stay above
-            ``floor_z + clearance`` and the pre-grasp pose above ``floor_z + 2 clearance``.
+        floor_z: height of the support surface; the gripper origin and its open fingertips
+            must stay above ``floor_z + clearance``, the pre-grasp pose above
+            ``floor_z + 2 clearance``.
         base: (3,) robot base position.
         reach: (min, max) horizontal-plus-vertical distance from the base (metres).
         max_approach_up: largest upward component of the approach direction (no grasps
@@ -47,6 +48,9 @@ class Workspace:
             away from the base (the hand cannot fold back between the base and the object).
         pregrasp_distance: back-off along the approach axis before the approach (metres).
         clearance: margin above the floor (metres).
+        opening: distance between the open fingertips (metres), centred on the gripper
+            origin along its closing axis (+x); both must stay ``clearance`` above the floor
+            too (0: the fingers are not checked).
     """
 
     floor_z: float
@@ -57,11 +61,17 @@ class Workspace:
     max_approach_out: float = 1.0
     pregrasp_distance: float = 0.08
     clearance: float = 0.005
+    opening: float = 0.0
 
     def __post_init__(self) -> None:
         if not 0 <= self.reach[0] < self.reach[1]:
             raise ValueError(f"reach must be (near, far) with 0 <= near < far, got {self.reach}")
-        check_at_least(0, pregrasp_distance=self.pregrasp_distance, clearance=self.clearance)
+        check_at_least(
+            0,
+            pregrasp_distance=self.pregrasp_distance,
+            clearance=self.clearance,
+            opening=self.opening,
+        )
 
 
 @checked
@@ -74,14 +84,16 @@ def approach_directions(grasps: torch.Tensor) -> torch.Tensor:
 def reachable(grasps: torch.Tensor, workspace: Workspace) -> torch.Tensor:
     """(N, 7) world grasps -> (N,) bool: passes the workspace's reachability tests."""
     grasps = check_poses(grasps, "grasps", batched=True)
-    t, z = grasps[:, :3], approach_directions(grasps)
+    t, R = grasps[:, :3], roma.unitquat_to_rotmat(grasps[:, 3:])
+    z = R[:, :, 2]  # the approach direction
+    lowest_finger = t[:, 2] - 0.5 * workspace.opening * R[:, 2, 0].abs()  # R[:, 2, 0]: closing z
     base = torch.tensor(workspace.base, dtype=t.dtype, device=t.device)
     pre = t - workspace.pregrasp_distance * z
     dist = (t - base).norm(dim=-1)
     outward = torch.nn.functional.normalize((t - base)[:, :2], dim=-1)
     out = (z[:, :2] * outward).sum(-1)
     return (
-        (t[:, 2] >= workspace.floor_z + workspace.clearance)
+        (lowest_finger >= workspace.floor_z + workspace.clearance)
         & (pre[:, 2] >= workspace.floor_z + 2 * workspace.clearance)
         & (dist >= workspace.reach[0])
         & (dist <= workspace.reach[1])

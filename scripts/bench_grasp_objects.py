@@ -1,0 +1,46 @@
+"""Grasps learned for every robosuite object that fits the Panda's hand, upright and lying.
+
+    python scripts/bench_grasp_objects.py --out runs/grasp_objects          # every object
+    python scripts/bench_grasp_objects.py --objects lemon can --trials 100  # some, shorter
+    python scripts/bench_grasp_objects.py --address ray://head:10001 --workers 32
+
+Each object is learned on its own pose estimates (NBP, 2 distractors, seed 0) standing
+upright at a random yaw, and again laid on a random side. Writes OUT/summary.json (per object
+under "objects": sampled, best_of_10, drop_rate, pose_error_deg, position_error_mm, symmetry,
+lying_sampled; the objects left out and why; the means and the targets met), OUT/success.png,
+and the two learn_grasps.py run folders OUT/upright and OUT/lying. Run it again with the same
+--out to go on after a stop.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+from pathlib import Path
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+
+from vistask.cli import positive_int, ray_address, run_main
+from vistask.experiments.grasp_objects import bench_grasp_objects
+from vistask.runs import run_dir
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--out", type=Path, default=None)
+    parser.add_argument(
+        "--objects", nargs="+", default=None, help="default: every object that fits the hand"
+    )
+    parser.add_argument("--trials", type=positive_int, default=300, help="learning trials")
+    parser.add_argument("--workers", type=positive_int, default=2, help="simulators at once")
+    parser.add_argument("--address", type=ray_address, default=None, help="a Ray cluster")
+    parser.add_argument("--seed", type=int, default=0)
+    args = parser.parse_args()
+    out = run_dir("bench_grasp_objects", args.out)
+    bench_grasp_objects(out, args.objects, args.trials, args.seed, args.workers, args.address)
+
+
+if __name__ == "__main__":
+    run_main(main)
