@@ -77,8 +77,16 @@ def _fixed(cls: type, **kwargs) -> Callable[[str], object]:
     seeded = "rng" in inspect.signature(cls.__init__).parameters
 
     def make(name: str):
-        extra = {"rng": np.random.default_rng(0)} if seeded else {}
-        return cls(name, **kwargs, **extra)
+        if seeded:
+            return cls(name, **kwargs, rng=np.random.default_rng(0))
+        # The others (a ball, a capsule) draw their sizes from a fresh, unseeded
+        # np.random.default_rng(): seed it for the one call.
+        unseeded = np.random.default_rng
+        np.random.default_rng = lambda seed=0, *args: unseeded(seed, *args)
+        try:
+            return cls(name, **kwargs)
+        finally:
+            np.random.default_rng = unseeded
 
     return make
 
