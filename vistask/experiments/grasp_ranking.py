@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import json
 from collections.abc import Sequence
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -133,13 +134,13 @@ def ranked_success(
     candidate, and any candidate (the best a ranking could do)."""
     local, ok, success = outcomes["local"], outcomes["ok"], outcomes["success"]
     rows = torch.arange(len(success))
+    rankings = {f"width {k:g}": partial(learner.success_rates, width=k) for k in widths}
+    rankings["validated"] = learner.rank
     result = {}
-    for k in widths:
-        rates = learner.success_rates(local.reshape(-1, 7), width=k).view(ok.shape)
+    for name, rate in rankings.items():
+        rates = rate(local.reshape(-1, 7)).view(ok.shape)
         pick = torch.where(ok, rates, -1.0).argmax(dim=1)
-        result[f"width {k:g}"] = _rate(success[rows, pick])
-    own = learner.rank(local.reshape(-1, 7)).view(ok.shape)
-    result["validated"] = _rate(success[rows, torch.where(ok, own, -1.0).argmax(dim=1)])
+        result[name] = _rate(success[rows, pick])
     result["first"] = _rate(success[:, 0])
     result["mean"] = _rate(success)
     result["any"] = _rate(success.any(dim=1))
