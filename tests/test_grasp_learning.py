@@ -393,11 +393,11 @@ class _ZoneRunner:
         return near | (torch.rand(len(grasps), generator=self.draws) < 1 / 3), {}
 
 
-def test_best_of_k_ranks_by_success_rates_where_the_last_cycle_validates_them() -> None:
+def test_best_of_k_ranks_by_success_rates_where_the_cycles_validate_them() -> None:
     """Grasps drawn mostly at a shaky place (one success in three), some at a sure one: the
     likeliest of 10 draws lies at the shaky place; the learner's ranking, validated on its
-    second cycle, picks the sure one. Where the last cycle's outcomes turn against the
-    earlier trials' rates, the ranking keeps the first candidate: a plain sample."""
+    second cycle, picks the sure one. Where success is chance everywhere, the ranking keeps
+    the first candidate: a plain sample."""
     sure, shaky = _pose([0.0, 0.0, 0.0], [0.0, 0.0, 0.0]), _pose([0.08, 0.0, 0.0], [0.0, 0.0, 0.0])
     proposal = SE3KDE(torch.stack([sure, shaky]), torch.tensor([0.15, 0.85]), 0.01, 0.1)
     learner = GraspLearner(proposal, sigma_t=0.003, sigma_r=0.08)
@@ -417,8 +417,11 @@ def test_best_of_k_ranks_by_success_rates_where_the_last_cycle_validates_them() 
     assert near_sure(likeliest) < 0.1
     assert near_sure(best) > 0.7  # 1 - 0.85^10 = 0.80 of the placements have a sure draw
 
-    runner.good = shaky  # the last cycle contradicts the earlier trials
-    learner.run_cycle(runner, 400, range(800, 1200), _gen(43))
+    # Where success does not depend on the grasp, no width ranks better than chance.
+    learner = GraspLearner(proposal, sigma_t=0.003, sigma_r=0.08)
+    runner.good = _pose([1.0, 0.0, 0.0], [0.0, 0.0, 0.0])  # out of reach: a third everywhere
+    for cycle in range(3):
+        learner.run_cycle(runner, 400, range(400 * cycle, 400 * (cycle + 1)), _gen(50 + cycle))
     assert learner.ranking_width is None
     kept, _, _ = draw_reachable(proposal, poses, None, _gen(42), candidates=10, score=learner.rank)
     candidates, _, _ = draw_candidates(proposal, poses, None, _gen(42), candidates=10)
@@ -427,16 +430,26 @@ def test_best_of_k_ranks_by_success_rates_where_the_last_cycle_validates_them() 
 
 def test_ranking_auc_and_its_validation_split() -> None:
     rates = torch.tensor([0.9, 0.8, 0.8, 0.1])
-    assert ranking_auc(rates, torch.tensor([True, True, False, False])) == 0.875
-    assert ranking_auc(rates, torch.tensor([False, False, True, True])) == 0.125
+    auc, z = ranking_auc(rates, torch.tensor([True, True, False, False]))
+    assert auc == 0.875 and z > 0
+    assert ranking_auc(rates, torch.tensor([False, False, True, True]))[0] == 0.125
     assert ranking_auc(rates, torch.ones(4, dtype=torch.bool)) is None
+    # Within strata: each success is compared only with the failures of its own stratum.
+    strata = torch.tensor([0, 0, 1, 1])
+    auc, _ = ranking_auc(rates, torch.tensor([True, False, False, True]), strata)
+    assert auc == 0.5  # 0.9 > 0.8 in stratum 0, 0.1 < 0.8 in stratum 1
+    assert ranking_auc(rates, torch.tensor([True, True, False, False]), strata) is None
+    # z grows with the evidence: the same order over ten times the outcomes.
+    many = ranking_auc(rates.repeat(10), torch.tensor([True, True, False, False]).repeat(10))
+    assert many[0] == pytest.approx(0.875, abs=0.01) and many[1] > 2 * z
     flat = SE3KDE(identity_poses(1), torch.ones(1), 1.0, 3.0)
     trials = Trials()
     trials.add(identity_poses(4), torch.tensor([True, False, True, True]), cycle=0)
+    trials.add(identity_poses(2), torch.tensor([True, True]), cycle=1)
     # Held-out trials all succeeded: nothing to rank them by.
-    assert validated_ranking_width(trials, [flat, flat], 2, 1.0, 0.01, 0.1) is None
-    with pytest.raises(ValueError, match="validation"):
-        validated_ranking_width(trials, [flat, flat], 0, 1.0, 0.01, 0.1)
+    assert validated_ranking_width(trials, [flat, flat], 1.0, 0.01, 0.1) is None
+    with pytest.raises(ValueError, match="significance"):
+        validated_ranking_width(trials, [flat, flat], 1.0, 0.01, 0.1, significance=0.0)
 
 
 def test_success_rates_for_ranking_see_the_failures_a_centimetre_around() -> None:

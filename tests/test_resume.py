@@ -238,6 +238,11 @@ def test_grasp_learning_stopped_inside_a_cycle_resumes_bit_for_bit(tmp_path, mon
         assert resumed[key] == straight[key], key
     # Only the last two cycles and the learned density's evaluation ran again.
     assert runners[0].executed == 50 and runners[2].executed == 20 + 10
+    # With no ranking validated, the best of 10 executes the plain draws, placement by placement.
+    records = [json.loads(line) for line in (tmp_path / "straight" / "trials.jsonl").open()]
+    grasps = lambda phase: [r["grasp"] for r in records if r["phase"] == phase]  # noqa: E731
+    assert straight["ranking_width"] is None
+    assert grasps("empirical_best_of_10") == grasps("empirical") != []
     assert (stopped / "trials.jsonl").read_text() == (
         tmp_path / "straight" / "trials.jsonl"
     ).read_text()

@@ -42,9 +42,9 @@ def best_of_k_draws(
     density drew, in its order.
 
     ``GraspExperiment.learn_object`` evaluates the learned density after the last cycle,
-    sampled and then best of K; each draws one seed per trial from the run's generator
-    (``trial_seeds``), and the trial's own generator then draws its candidates, from the
-    hypothesis where the learned density has none in reach (as ``run_trials``).
+    sampled and then best of K, both from the same seeds, one per trial drawn from the run's
+    generator (``trial_seeds``); the trial's own generator then draws its candidates, from
+    the hypothesis where the learned density has none in reach (as ``run_trials``).
 
     Args:
         learner: the learner of the run's checkpoint.
@@ -56,7 +56,6 @@ def best_of_k_draws(
     """
     generator = torch.Generator()
     generator.set_state(generator_state)
-    trial_seeds(generator, len(poses))  # the sampled evaluation's
     seeds = trial_seeds(generator, len(poses))
     draws = []
     for pose, seed in zip(poses, seeds, strict=True):

@@ -77,8 +77,9 @@ def learning_placements(seed: int, cycle: int, n: int) -> range:
 BEST_OF = 10
 """The "best of 10" evaluation executes the best of this many reachable draws: for the learned
 density the one whose neighbours among the learning trials succeeded most often, at the kernel
-width chosen on the last learning cycle, or the first where no width ranks that cycle's
-outcomes (``GraspLearner.rank``); for the hypothesis the likeliest."""
+width validated on the learning cycles, or the first, the plain draw, where no width ranks
+their outcomes significantly better than chance (``GraspLearner.rank``); for the hypothesis
+the likeliest."""
 
 HYPOTHESES = ("feature", "demo")
 POSE_SOURCES = ("estimate", "true")
@@ -288,8 +289,11 @@ class GraspExperiment:
                 density: SE3KDE, phase: str, fallback: SE3KDE | None = None, score=None
             ) -> None:
                 """Plain draws and best-of-K draws (the best by ``score``, default the
-                likeliest) on the same held-out placements."""
+                likeliest) on the same held-out placements. Both draw from the same seeds, so
+                that a best of K keeping its first candidate executes the plain draw."""
+                state = generator.get_state()
                 for suffix, k in (("", 1), (f"_best_of_{BEST_OF}", BEST_OF)):
+                    generator.set_state(state)
                     found: list[dict[str, Any]] = []
                     evaluate_density(
                         density,
@@ -356,7 +360,7 @@ class GraspExperiment:
                 empirical.save(out / "empirical.pt")
                 # As in learning: the hypothesis where the learned density reaches nothing.
                 # Its best of K: the candidate whose neighbours among the trials succeeded
-                # most often, where the last cycle validates such a ranking.
+                # most often, where the learning cycles validate such a ranking.
                 evaluate(empirical, "empirical", hypothesis, learner.rank)
             density_figure(
                 [("hypothesis", hypothesis), ("empirical", empirical)],

@@ -7,6 +7,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from statistics import NormalDist
 
 import torch
 
@@ -190,61 +191,83 @@ def empirical_density(
 
 
 @checked
-def ranking_auc(rates: torch.Tensor, success: torch.Tensor) -> float | None:
-    """The chance that a successful trial rates above a failed one (ties count half): the
-    area under the ROC curve of ``rates`` (N,) as a predictor of ``success`` (N,) bool; 0.5
-    ranks by chance. None when the trials have no success or no failure to tell apart."""
-    wins, losses = rates[success].double(), rates[~success].double()
-    if len(wins) == 0 or len(losses) == 0:
+def ranking_auc(
+    rates: torch.Tensor, success: torch.Tensor, strata: torch.Tensor | None = None
+) -> tuple[float, float] | None:
+    """How well ``rates`` (N,) order the outcomes ``success`` (N,) bool, comparing each
+    success only with the failures of its stratum (``strata`` (N,) int, default one).
+
+    Returns:
+        (auc, z): the chance that a success rates above a failure of its stratum (ties count
+        half; 0.5 ranks by chance, the area under the ROC curve), and its z-score against
+        chance under the Mann-Whitney null, the strata pooled as in van Elteren's test.
+        None when no stratum has both a success and a failure.
+    """
+    strata = torch.zeros_like(success, dtype=torch.long) if strata is None else strata
+    above = pairs = variance = 0.0
+    for s in strata.unique():
+        wins, losses = rates[(strata == s) & success].double(), rates[(strata == s) & ~success]
+        n1, n2 = len(wins), len(losses)
+        if n1 == 0 or n2 == 0:
+            continue
+        d = wins[:, None] - losses[None, :].double()
+        above += float((d > 0).sum() + 0.5 * (d == 0).sum())
+        pairs += n1 * n2
+        variance += n1 * n2 * (n1 + n2 + 1) / 12
+    if pairs == 0:
         return None
-    above = (wins[:, None] > losses[None, :]).double() + 0.5 * (wins[:, None] == losses[None, :])
-    return float(above.mean())
+    return above / pairs, (above - pairs / 2) / math.sqrt(variance)
 
 
 @checked
 def validated_ranking_width(
     trials: Trials,
     proposals: Sequence[SE3KDE],
-    validation: int,
     c_rel: float,
     sigma_t: float,
     sigma_r: float,
     widths: Sequence[float] = RANKING_WIDTHS,
+    significance: float = 0.05,
 ) -> float | None:
-    """The kernel width whose success rates rank grasps best, chosen on a validation split.
+    """The kernel width whose success rates rank grasps best, validated cycle by cycle.
 
-    The last ``validation`` trials are held out; the success rates of the earlier ones
-    (``local_success_rates``, kernels ``width`` times (``sigma_t``, ``sigma_r``)) rate the
-    held-out grasps, and each width is scored by how well it orders their outcomes
-    (``ranking_auc``).
+    Each cycle after the first is held out in turn: the success rates of the cycles before it
+    (``local_success_rates``, kernels ``width`` times (``sigma_t``, ``sigma_r``)) rate its
+    grasps, and each width is scored by how well they order the held-out outcomes, pooled
+    over the cycles (``ranking_auc``).
 
     Args:
-        trials: all trials, in the order they ran; the held-out ones were drawn from the last
-            of ``proposals`` (or the first, where it had none in reach).
+        trials: all trials; ``trials.cycle`` indexes ``proposals``.
         proposals: the density each cycle drew from.
-        validation: how many of the last trials to hold out (the last cycle's).
         c_rel, sigma_t, sigma_r: the learner's weight offset and kernel.
         widths: the candidate widths.
+        significance: the chance of keeping a width that ranks no better than chance
+            (one-sided, Bonferroni-corrected over ``widths``).
 
     Returns:
-        the width of the highest AUC, or None where none ranks the held-out outcomes better
-        than chance (AUC <= 0.5), or they are all successes or all failures: a best-of-K
-        draw then does best keeping its first candidate, a plain sample.
+        the width of the highest z-score where it is significant, else None: a best-of-K draw
+        then does best keeping its first candidate, a plain sample.
     """
-    check_at_least(1, validation=validation)
-    fit = len(trials) - validation
-    if fit < 1 or len(proposals) < 2:
+    check_positive(significance=significance)
+    held = torch.zeros(len(trials), dtype=torch.bool)
+    rates = {k: torch.zeros(len(trials)) for k in widths}
+    for c in range(1, len(proposals)):
+        earlier, now = trials.cycle < c, trials.cycle == c
+        if not now.any() or not trials.success[earlier].any():
+            continue
+        before = Trials(trials.grasps[earlier], trials.success[earlier], trials.cycle[earlier])
+        w = trial_weights(before, proposals[:c], c_rel)
+        for k in widths:
+            at = trials.grasps[now]
+            rates[k][now] = local_success_rates(before, w, k * sigma_t, k * sigma_r, at=at)
+        held |= now
+    scores = {}
+    for k in widths:
+        test = ranking_auc(rates[k][held], trials.success[held], trials.cycle[held])
+        if test is not None:
+            scores[k] = test[1]
+    if not scores:
         return None
-    earlier = Trials(trials.grasps[:fit], trials.success[:fit], trials.cycle[:fit])
-    grasps, success = trials.grasps[fit:], trials.success[fit:]
-    if not earlier.success.any() or success.all() or not success.any():
-        return None
-    w = trial_weights(earlier, proposals[:-1], c_rel)
-    scores = {
-        k: ranking_auc(
-            local_success_rates(earlier, w, k * sigma_t, k * sigma_r, at=grasps), success
-        )
-        for k in widths
-    }
     best = max(scores, key=scores.get)
-    return best if scores[best] > 0.5 else None
+    critical = NormalDist().inv_cdf(1 - significance / len(widths))
+    return best if scores[best] > critical else None

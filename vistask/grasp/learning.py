@@ -120,6 +120,7 @@ class GraspLearner:
         self.proposals: list[SE3KDE] = []  # the density each cycle drew from
         self.trials = Trials()
         self.history: list[CycleStats] = []
+        self._ranking: tuple[int, float | None] | None = None  # (trials, width) last found
 
     @property
     def empirical(self) -> SE3KDE | None:
@@ -160,19 +161,17 @@ class GraspLearner:
     @property
     def ranking_width(self) -> float | None:
         """The kernel width (times the empirical density's) at which ``rank`` rates grasps:
-        the one whose success rates, from the trials of the cycles before the last, best
-        order the last cycle's outcomes (``validated_ranking_width``); None where none orders
-        them better than chance, or before two cycles."""
+        the one whose success rates, from the trials of the cycles before each cycle, order
+        that cycle's outcomes significantly better than chance (``validated_ranking_width``);
+        None where none does, or before two cycles."""
         if len(self.history) < 2:
             return None
-        return validated_ranking_width(
-            self.trials,
-            self.proposals,
-            self.history[-1].trials,
-            self.c_rel,
-            self.sigma_t,
-            self.sigma_r,
-        )
+        if self._ranking is None or self._ranking[0] != len(self.trials):
+            width = validated_ranking_width(
+                self.trials, self.proposals, self.c_rel, self.sigma_t, self.sigma_r
+            )
+            self._ranking = (len(self.trials), width)
+        return self._ranking[1]
 
     def rank(self, grasps: torch.Tensor) -> torch.Tensor:
         """(M, 7) object-frame grasps -> (M,) ratings for choosing the best of K candidates
