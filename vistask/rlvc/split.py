@@ -107,9 +107,9 @@ def welch_splits(
     return reduction, p, maybe & (p < alpha)
 
 
-# (group, feature) cells whose counts a split search holds at once: its tables take about
-# 30 bytes a cell, so this bounds them near 130 MB however many classes the data carry.
-TABLE_CELLS = 1 << 22
+# (group, feature) cells whose counts a split search holds at once: its tables take 5 bytes a
+# cell, so this bounds them near 40 MB however many classes the data carry.
+TABLE_CELLS = 1 << 23
 
 
 def candidate_moments(
@@ -129,7 +129,8 @@ def candidate_moments(
             that cannot split, never counted).
         features: (nnz,) long feature of each pair.
         rows: (nnz,) long row of each pair.
-        moments: (R,) float64 count, sum and sum of squares of the TD errors of each row.
+        moments: (R,) float64 count (whole numbers), sum and sum of squares of the TD errors
+            of each row.
         n_g: (G,) float64 interactions of each group.
         n_features: F.
         min_count: interactions needed on each side.
@@ -148,6 +149,7 @@ def candidate_moments(
         block = (group_row // rows_per_block).clamp_max(n_blocks).numpy().astype(np.uint16)
         order = torch.from_numpy(np.argsort(block, kind="stable"))
         blocks = torch.split(order, np.bincount(block, minlength=n_blocks + 1).tolist())
+    counts = moments[0].to(torch.int32)
     found = []
     for b in range(n_blocks):
         pairs, first = blocks[b], b * rows_per_block
@@ -156,14 +158,22 @@ def candidate_moments(
         # Pairs of the groups that cannot split land in one row past the block's, cut off.
         key = (group_row[pairs] - first) * n_features + features[pairs]
         row = rows[pairs]
-        n_f, s1, s2 = (
-            torch.zeros(size + n_features, dtype=torch.float64).index_add_(0, key, m[row])
-            for m in moments
+        # Counts first, in a table of int32; sums only for the pairs of the cells that pass.
+        table = torch.zeros(size + n_features, dtype=torch.int32).index_add_(0, key, counts[row])
+        n_f = table[:size].view(n_rows, n_features)
+        room = (n_g[first : first + n_rows, None] - min_count).to(torch.int32)
+        passes = torch.zeros(size + n_features, dtype=torch.bool)
+        passes[:size] = ((n_f >= min_count) & (n_f <= room)).flatten()
+        cell = torch.nonzero(passes).flatten()
+        n_cell = table[cell].double()
+        table[cell] = torch.arange(len(cell), dtype=torch.int32)  # now each cell's index
+        hit = torch.nonzero(passes[key]).flatten()
+        at, row = table[key[hit]].long(), row[hit]
+        s1, s2 = (
+            torch.zeros(len(cell), dtype=torch.float64).index_add_(0, at, m[row])
+            for m in moments[1:]
         )
-        n_f = n_f[:size].view(n_rows, n_features)
-        room = n_g[first : first + n_rows, None] - min_count
-        cell = torch.nonzero(((n_f >= min_count) & (n_f <= room)).flatten()).flatten()
-        found.append((cell + first * n_features, n_f.flatten()[cell], s1[cell], s2[cell]))
+        found.append((cell + first * n_features, n_cell, s1, s2))
     return tuple(torch.cat(parts) for parts in zip(*found, strict=True))
 
 
