@@ -35,7 +35,7 @@ from vistask.rlvc import (
     check_image_env,
     collect_chunks,
 )
-from vistask.rlvc.split import TABLE_CELLS
+from vistask.rlvc.split import CELL_BYTES, TABLE_CELLS
 from vistask.saving import load_state, save_state
 
 MAX_BLOCKED = 2  # an epsilon-greedy episode ends after this many blocked moves in a row
@@ -307,7 +307,7 @@ class VisualAgent(SB3Model):
         # The split search's (class, action) groups that can split hold 2 min_count each.
         cells = min(TABLE_CELLS, interactions // (2 * self.min_count) * self.n_words)
         # A database is held twice while it joins the earlier ones.
-        need = 2 * interactions * per_interaction + chunk + cache + cells * 30
+        need = 2 * interactions * per_interaction + chunk + cache + cells * CELL_BYTES
         return need / 2**20
 
     def _check_memory(self, total_timesteps: int) -> None:

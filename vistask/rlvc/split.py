@@ -107,9 +107,10 @@ def welch_splits(
     return reduction, p, maybe & (p < alpha)
 
 
-# (group, feature) cells whose counts a split search holds at once: its tables take 5 bytes a
-# cell, so this bounds them near 40 MB however many classes the data carry.
+# (group, feature) cells whose counts a split search holds at once, in tables of CELL_BYTES a
+# cell: this bounds them near 40 MB however many classes the data carry.
 TABLE_CELLS = 1 << 23
+CELL_BYTES = 5  # an int32 count and a bool
 
 
 def candidate_moments(
