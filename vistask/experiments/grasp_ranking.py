@@ -7,8 +7,8 @@ on the pose the run estimated there (recorded in ``trials.jsonl``). With all out
 any ranking of the candidates can be scored at once: here the success rates of the learning
 trials (``local_success_rates``) at several kernel widths, against picking the first
 candidate, the average candidate, and the best any ranking could do (some candidate
-succeeds), and the learner's own choice (``GraspLearner.rank``: the width chosen on its last
-learning cycle, or the first candidate). Trials are deterministic for a placement and a grasp,
+succeeds), and the learner's own choice (``GraspLearner.rank``: the width validated on its
+learning cycles, or the first candidate). Trials are deterministic for a placement and a grasp,
 so that choice scores what the run's own best-of-K evaluation measured.
 
 The outcomes are kept in ``<object>/candidates.pt`` of the run, so that ranking again costs

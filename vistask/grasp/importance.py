@@ -204,13 +204,14 @@ def ranking_auc(
         None when no stratum has both a success and a failure.
     """
     strata = torch.zeros_like(success, dtype=torch.long) if strata is None else strata
+    rates = rates.double()
     above = pairs = variance = 0.0
     for s in strata.unique():
-        wins, losses = rates[(strata == s) & success].double(), rates[(strata == s) & ~success]
+        wins, losses = rates[(strata == s) & success], rates[(strata == s) & ~success]
         n1, n2 = len(wins), len(losses)
         if n1 == 0 or n2 == 0:
             continue
-        d = wins[:, None] - losses[None, :].double()
+        d = wins[:, None] - losses[None, :]
         above += float((d > 0).sum() + 0.5 * (d == 0).sum())
         pairs += n1 * n2
         variance += n1 * n2 * (n1 + n2 + 1) / 12
@@ -256,9 +257,8 @@ def validated_ranking_width(
         if not now.any() or not trials.success[earlier].any():
             continue
         before = Trials(trials.grasps[earlier], trials.success[earlier], trials.cycle[earlier])
-        w = trial_weights(before, proposals[:c], c_rel)
+        w, at = trial_weights(before, proposals[:c], c_rel), trials.grasps[now]
         for k in widths:
-            at = trials.grasps[now]
             rates[k][now] = local_success_rates(before, w, k * sigma_t, k * sigma_r, at=at)
         held |= now
     scores = {}
