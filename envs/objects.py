@@ -5,7 +5,9 @@
 - a preset: a robosuite object with fixed sizes ("box", "cube", "hammer"; add your own with
   ``register_object``);
 - a robosuite object class, as its class name or in snake case without ``Object``
-  ("CanObject", "can", "bottle", "lemon", "round_nut", ...);
+  ("CanObject", "can", "bottle", "lemon", "round_nut", ...), at robosuite's own sizes; it is
+  named in snake case, with ``_object`` where a preset has that name ("BoxObject" ->
+  "box_object");
 - a MuJoCo XML file in robosuite's object format (``*.xml``): a ``<body name="object">``
   holding the geoms, and the sites ``bottom_site``, ``top_site`` and
   ``horizontal_radius_site`` next to it, as in robosuite's ``models/assets/objects``.
@@ -242,8 +244,10 @@ def object_spec(name: str | Path | ObjectSpec) -> ObjectSpec:
     shape = shape_symmetry(cls_name, make)
     sym = Symmetry.none() if cls_name in _TEXTURED else shape
     snake = re.sub(r"(?<!^)(?=[A-Z])", "_", cls_name.removesuffix("Object")).lower()
+    # A preset of fixed sizes may hold the short name ("box"): the class at robosuite's own
+    # sizes is another object, so it gets another name ("box_object") in scenes and results.
     return ObjectSpec(
-        snake,
+        f"{snake}_object" if snake in _PRESETS else snake,
         make,
         sym,
         can_tip=_can_tip(shape),
@@ -264,9 +268,20 @@ def rest_rotation(
     it rests."""
     rot = roma.unitquat_to_rotmat(torch.tensor(spec.rest, dtype=torch.float64))
     if rng is not None and spec.can_tip and rng.uniform() < tip_probability:
-        axis = np.eye(3)[rng.integers(0, 2)] * rng.choice([-1.0, 1.0]) * (math.pi / 2)
-        rot = rot @ roma.rotvec_to_rotmat(torch.from_numpy(axis))
+        rot = rot @ _side_turn(rng.integers(0, 2), rng.choice([-1.0, 1.0]))
     return rot
+
+
+def lying_rotations(spec: ObjectSpec) -> list[Tensor]:
+    """The four (3, 3) float64 orientations ``rest_rotation`` lays ``spec`` on a side in
+    (before physics settles it): turned by -90 or +90 degrees about its x, then its y."""
+    rest = rest_rotation(spec)
+    return [rest @ _side_turn(axis, sign) for axis in (0, 1) for sign in (-1.0, 1.0)]
+
+
+def _side_turn(axis: int, sign: float) -> Tensor:
+    """(3, 3) quarter turn of sign ``sign`` about the object's ``axis`` (0: x, 1: y)."""
+    return roma.rotvec_to_rotmat(torch.from_numpy(np.eye(3)[axis] * sign * (math.pi / 2)))
 
 
 def yaw_rotation(yaw: float) -> Tensor:

@@ -9,7 +9,13 @@ import pytest
 
 pytest.importorskip("robosuite")
 
-from vistask.experiments.grasp_objects import bench_grasp_objects, graspable_objects
+from vistask.envs import hand_fit
+from vistask.envs.objects import lying_rotations, object_name, object_spec, rest_rotation
+from vistask.experiments.grasp_objects import (
+    bench_grasp_objects,
+    graspable_objects,
+    pose_misfits,
+)
 from vistask.experiments.grasps import GraspExperiment
 
 
@@ -22,6 +28,26 @@ def test_graspable_objects_keep_what_fits_the_hand_and_say_why_others_do_not() -
     assert not set(kept) & set(left_out)
 
 
+def test_a_pose_fits_the_hand_where_some_part_is_narrower_than_the_opening() -> None:
+    box = object_spec("BoxObject")  # 111 x 82 x 63 mm, resting on its largest face
+    assert "82 mm across" in hand_fit.pose_misfit(box.make("probe"), rest_rotation(box))
+    assert all(hand_fit.pose_misfit(box.make("probe"), r) is None for r in lying_rotations(box))
+    # Lying on its side, the 100 x 150 mm cereal box is 30 mm high: nothing to close across.
+    cereal = pose_misfits("cereal")
+    assert set(cereal) == {"lying"} and "turned -x onto a side" in cereal["lying"]
+    assert "100 mm across" in cereal["lying"]
+    assert pose_misfits("can") == {
+        "lying": "round about its upright axis, it would roll away on a side"
+    }
+
+
+def test_a_ring_fits_by_its_wall_with_a_finger_in_its_hole(monkeypatch) -> None:
+    nut = object_spec("RoundNutObject")  # 106 mm across its ring
+    assert hand_fit.pose_misfit(nut.make("probe"), rest_rotation(nut)) is None
+    monkeypatch.setattr(hand_fit, "FINGER", 0.2)  # no hole takes so wide a finger
+    assert "106 mm across" in hand_fit.pose_misfit(nut.make("probe"), rest_rotation(nut))
+
+
 def test_bench_runs_each_object_upright_and_lying_and_checks_the_targets(tmp_path, monkeypatch):
     runs = []
 
@@ -30,7 +56,7 @@ def test_bench_runs_each_object_upright_and_lying_and_checks_the_targets(tmp_pat
         lying = self.tip_probability > 0
         return {
             "objects": {
-                k: {
+                object_name(k): {
                     "empirical_success": 0.8 if lying else 0.9,
                     "best_of_10_success": 0.95 if k == "lemon" else 0.85,
                     "failure_reasons": {"dropped": 4, "missed": 1},
@@ -44,9 +70,19 @@ def test_bench_runs_each_object_upright_and_lying_and_checks_the_targets(tmp_pat
         }
 
     monkeypatch.setattr(GraspExperiment, "run", run)
-    summary = bench_grasp_objects(tmp_path, ["lemon", "can"], trials=100)
-    # The can stands round about a vertical axis: it cannot lie on a side.
-    assert runs == [("upright", ("lemon", "can"), 0.0, 20), ("lying", ("lemon",), 1.0, 20)]
+    summary = bench_grasp_objects(tmp_path, ["lemon", "can", "BoxObject"], trials=100)
+    # The can stands round about a vertical axis: it cannot lie on a side. The box is wider
+    # than the hand standing on its largest face.
+    assert runs == [
+        ("upright", ("lemon", "can"), 0.0, 20),
+        ("lying", ("lemon", "BoxObject"), 1.0, 20),
+    ]
+    # The class at robosuite's sizes is not the "box" preset, nor named as it is.
+    assert (object_name("BoxObject"), object_name("box")) == ("box_object", "box")
+    box = summary["objects"]["box_object"]
+    assert (box["sampled"], box["best_of_10"], box["lying_sampled"]) == (None, None, 0.8)
+    assert set(summary["poses_left_out"]) == {"can", "box_object"}
+    assert "82 mm" in summary["poses_left_out"]["box_object"]["upright"]
     lemon, can = summary["objects"]["lemon"], summary["objects"]["can"]
     assert (lemon["sampled"], lemon["lying_sampled"], can["lying_sampled"]) == (0.9, 0.8, None)
     assert lemon["drop_rate"] == 0.04 and lemon["position_error_mm"] == 2.0

@@ -53,38 +53,85 @@ def graspable_objects() -> tuple[list[str], dict[str, str]]:
     return kept, left_out
 
 
-def object_row(upright: dict[str, Any], lying: dict[str, Any] | None, spec) -> dict[str, Any]:
-    """One object's figures from its runs' summaries (``summarize_object``)."""
-    symmetry, error_cm = spec.symmetry, upright["mean_pose_error_cm"]
+def pose_misfits(kind: str) -> dict[str, str]:
+    """Why ``kind`` is not learned in a condition of ``CONDITIONS``, by condition: standing
+    upright, or lying, with no part the hand closes across (``pose_misfit``) or on any one of
+    its sides; objects round about a vertical axis do not lie. Empty when both fit."""
+    from vistask.envs.hand_fit import pose_misfit
+    from vistask.envs.objects import lying_rotations, object_spec, rest_rotation
+
+    spec = object_spec(kind)
+    misfits = {}
+    upright = pose_misfit(spec.make("probe"), rest_rotation(spec))
+    if upright is not None:
+        misfits["upright"] = upright
+    if not spec.can_tip:
+        misfits["lying"] = "round about its upright axis, it would roll away on a side"
+        return misfits
+    sides = ("-x", "+x", "-y", "+y")
+    for side, rot in zip(sides, lying_rotations(spec), strict=True):
+        reason = pose_misfit(spec.make("probe"), rot)
+        if reason is not None:
+            misfits["lying"] = f"turned {side} onto a side: {reason}"
+            break
+    return misfits
+
+
+def object_row(
+    upright: dict[str, Any] | None, lying: dict[str, Any] | None, spec
+) -> dict[str, Any]:
+    """One object's figures from its runs' summaries (``summarize_object``); None for those of
+    a condition it was not learned in."""
+    symmetry = spec.symmetry
     axis = None if symmetry.axis is None else [round(v, 3) for v in symmetry.axis.tolist()]
-    return {
-        "sampled": upright["empirical_success"],
-        "best_of_10": upright[f"best_of_{BEST_OF}_success"],
-        "drop_rate": upright["failure_reasons"].get("dropped", 0)
-        / upright["eval_trials_per_measure"],
-        "pose_error_deg": upright["mean_pose_error_deg"],
-        "position_error_mm": None if error_cm is None else 10 * error_cm,
-        "symmetry": {"rotations": len(symmetry.rotations), "axis": axis},
-        "ranking_width": upright["ranking_width"],
-        "lying_sampled": None if lying is None else lying["empirical_success"],
-        "lying_best_of_10": None if lying is None else lying[f"best_of_{BEST_OF}_success"],
-    }
+    row: dict[str, Any] = dict.fromkeys(
+        ("sampled", "best_of_10", "drop_rate", "pose_error_deg", "position_error_mm")
+    )
+    row |= {"symmetry": {"rotations": len(symmetry.rotations), "axis": axis}, "ranking_width": None}
+    if upright is not None:
+        error_cm = upright["mean_pose_error_cm"]
+        row |= {
+            "sampled": upright["empirical_success"],
+            "best_of_10": upright[f"best_of_{BEST_OF}_success"],
+            "drop_rate": upright["failure_reasons"].get("dropped", 0)
+            / upright["eval_trials_per_measure"],
+            "pose_error_deg": upright["mean_pose_error_deg"],
+            "position_error_mm": None if error_cm is None else 10 * error_cm,
+            "ranking_width": upright["ranking_width"],
+        }
+    row["lying_sampled"] = None if lying is None else lying["empirical_success"]
+    row["lying_best_of_10"] = None if lying is None else lying[f"best_of_{BEST_OF}_success"]
+    return row
 
 
-def summarize(objects: dict[str, dict[str, Any]], left_out: dict[str, str]) -> dict[str, Any]:
-    """The bench's summary: per object its row, the means and which targets are met."""
-    rows = list(objects.values())
-    sampled = [r["sampled"] for r in rows]
-    lying = [r["lying_sampled"] for r in rows if r["lying_sampled"] is not None]
+def summarize(
+    objects: dict[str, dict[str, Any]],
+    left_out: dict[str, str],
+    poses_left_out: dict[str, dict[str, str]],
+) -> dict[str, Any]:
+    """The bench's summary: per object its row, the objects and the poses left out with
+    their reasons, the means (of the objects learned upright, and lying) and which targets
+    are met."""
+    upright = [r for r in objects.values() if r["sampled"] is not None]
+    lying = [r["lying_sampled"] for r in objects.values() if r["lying_sampled"] is not None]
+    sampled = [r["sampled"] for r in upright]
+    mean = lambda values: sum(values) / len(values) if values else None  # noqa: E731
     means = {
-        "mean_sampled": sum(sampled) / len(rows),
-        "mean_best_of_10": sum(r["best_of_10"] for r in rows) / len(rows),
-        "lowest_sampled": min(sampled),
-        "lying": sum(lying) / len(lying) if lying else None,
+        "mean_sampled": mean(sampled),
+        "mean_best_of_10": mean([r["best_of_10"] for r in upright]),
+        "lowest_sampled": min(sampled, default=None),
+        "lying": mean(lying),
     }
     met = {k: v is not None and v >= TARGETS[k] for k, v in means.items()}
-    met["best_of_10_at_least_sampled"] = all(r["best_of_10"] >= r["sampled"] for r in rows)
-    return {"objects": objects, "left_out": left_out, **means, "targets": TARGETS, "met": met}
+    met["best_of_10_at_least_sampled"] = all(r["best_of_10"] >= r["sampled"] for r in upright)
+    return {
+        "objects": objects,
+        "left_out": left_out,
+        "poses_left_out": poses_left_out,
+        **means,
+        "targets": TARGETS,
+        "met": met,
+    }
 
 
 def format_table(summary: dict[str, Any]) -> str:
@@ -96,14 +143,17 @@ def format_table(summary: dict[str, Any]) -> str:
     ]
     for name, r in summary["objects"].items():
         rows.append(
-            f"{name:<20} {r['sampled']:>8.2f} {r['best_of_10']:>10.2f} {r['drop_rate']:>6.2f} "
-            f"{cell(r['pose_error_deg'], '.1f'):>8} {cell(r['position_error_mm'], '.1f'):>8} "
-            f"{cell(r['lying_sampled'], '.2f'):>6}"
+            f"{name:<20} {cell(r['sampled'], '.2f'):>8} {cell(r['best_of_10'], '.2f'):>10} "
+            f"{cell(r['drop_rate'], '.2f'):>6} {cell(r['pose_error_deg'], '.1f'):>8} "
+            f"{cell(r['position_error_mm'], '.1f'):>8} {cell(r['lying_sampled'], '.2f'):>6}"
         )
     rows.append(
-        f"{'mean':<20} {summary['mean_sampled']:>8.2f} {summary['mean_best_of_10']:>10.2f} "
-        f"{'':>6} {'':>8} {'':>8} {cell(summary['lying'], '.2f'):>6}"
+        f"{'mean':<20} {cell(summary['mean_sampled'], '.2f'):>8} "
+        f"{cell(summary['mean_best_of_10'], '.2f'):>10} {'':>6} {'':>8} {'':>8} "
+        f"{cell(summary['lying'], '.2f'):>6}"
     )
+    for name, reasons in summary["poses_left_out"].items():
+        rows += [f"{name} not learned {c}: {why}" for c, why in reasons.items()]
     return "\n".join(rows)
 
 
@@ -142,8 +192,8 @@ def bench_grasp_objects(
 ) -> dict[str, Any]:
     """Learn and score grasps of ``objects`` (default: ``graspable_objects()``) upright and
     lying, ``trials`` learning trials each in 5 cycles; write ``out/summary.json`` (see
-    ``summarize``), ``out/success.png`` and print the table. Objects that cannot lie on a
-    side (round about a vertical axis) have no lying run."""
+    ``summarize``), ``out/success.png`` and print the table. An object is learned in the
+    conditions it fits the hand in (``pose_misfits``)."""
     from vistask.envs.objects import object_name, object_spec
 
     left_out: dict[str, str] = {}
@@ -152,9 +202,10 @@ def bench_grasp_objects(
     cycles = 5
     if trials < cycles:
         raise ValueError(f"trials must be at least {cycles} (one per cycle), got {trials}")
-    runs = {}
+    misfits = {kind: pose_misfits(kind) for kind in objects}
+    runs: dict[str, dict[str, Any]] = {}
     for condition, tip in CONDITIONS.items():
-        kinds = [k for k in objects if tip == 0.0 or object_spec(k).can_tip]
+        kinds = [k for k in objects if condition not in misfits[k]]
         if not kinds:
             continue
         experiment = GraspExperiment(
@@ -167,12 +218,17 @@ def bench_grasp_objects(
             address=address,
         )
         runs[condition] = experiment.run(out / condition, pictures=0)["objects"]
-    rows = {}
+    rows, poses_left_out = {}, {}
     for kind in objects:
         name = object_name(kind)
-        lying = runs.get("lying", {}).get(name)
-        rows[name] = object_row(runs["upright"][name], lying, object_spec(kind))
-    summary = summarize(rows, left_out)
+        if misfits[kind]:
+            poses_left_out[name] = misfits[kind]
+        if len(misfits[kind]) < len(CONDITIONS):
+            upright, lying = (runs.get(c, {}).get(name) for c in CONDITIONS)
+            rows[name] = object_row(upright, lying, object_spec(kind))
+        else:
+            left_out[kind] = "fits the hand neither upright nor lying"
+    summary = summarize(rows, left_out, poses_left_out)
     write_summary(out / "summary.json", summary)
     bar_chart(summary, out / "success.png")
     print(format_table(summary))

@@ -1,0 +1,119 @@
+"""Whether an object resting on the table in a given orientation has a part that a parallel
+hand can close across: the test behind the objects and poses ``bench_grasp_objects.py`` keeps.
+
+The object's collision geoms are probed with vertical rays on a grid (``column_heights``), which
+gives its solid cross-section at every height. Fingers close horizontally (a finger under the
+object would be under the table), their tips ``clearance`` above the table or higher. A
+cross-section part fits when it is narrower than the opening in some horizontal direction, or
+when it is a wall around a hole that a finger fits into (a nut's rim, a tube's wall) and the wall
+is thinner than the opening.
+
+Example:
+    >>> from vistask.envs.objects import object_spec, rest_rotation
+    >>> spec = object_spec("BoxObject")                     # 111 x 82 x 63 mm, lying flat
+    >>> pose_misfit(spec.make("probe"), rest_rotation(spec))
+    'narrowest part 82 mm across, above 10 mm: wider than the 80 mm opening'
+"""
+
+from __future__ import annotations
+
+import math
+
+import mujoco
+import numpy as np
+from scipy import ndimage
+from torch import Tensor
+
+from vistask.envs.object_shape import compile_alone
+
+CELL = 0.002  # metres between the probing rays
+CLEARANCE = 0.01  # metres from the table up to the lowest height the fingertips close at
+FINGER = 0.012  # metres: a hole this wide takes a fingertip
+DIRECTIONS = np.linspace(0.0, math.pi, 36, endpoint=False)  # horizontal closing directions
+
+
+def column_heights(obj, rot: Tensor, cell: float = CELL) -> tuple[np.ndarray, np.ndarray]:
+    """Bottom and top (H, W) of the robosuite object ``obj``'s collision geoms along vertical
+    rays on a ``cell`` grid, the object turned by ``rot`` (3, 3) and resting on z = 0 (NaN where
+    a ray misses it); rows run along y, columns along x, in metres."""
+    model, data, root = compile_alone(obj)
+    # Rested frame -> the compiled world: undo the turn, then the root body's placement.
+    to_world = data.xmat[root].reshape(3, 3) @ rot.numpy().T
+    centre = data.xpos[root]
+    corners = _aabb_corners(model, data, root) @ to_world  # (8, 3) in the rested frame
+    lo, hi = corners.min(0) - cell, corners.max(0) + cell
+    xs, ys = np.arange(lo[0], hi[0], cell), np.arange(lo[1], hi[1], cell)
+    groups = np.array([1, 0, 0, 0, 0, 0], np.uint8)  # robosuite's collision geoms
+    hit = np.zeros(1, np.int32)
+
+    def ray(x: float, y: float, z: float, direction: list[float]) -> float:
+        """Distance from (x, y, z) along ``direction``, both in the rested frame, to the
+        object (-1: it misses)."""
+        start = centre + to_world @ [x, y, z]
+        return mujoco.mj_ray(model, data, start, to_world @ direction, groups, 1, -1, hit)
+
+    bottom = np.full((len(ys), len(xs)), np.nan)
+    top = np.full_like(bottom, np.nan)
+    for i, y in enumerate(ys):
+        for j, x in enumerate(xs):
+            d = ray(x, y, hi[2], [0.0, 0.0, -1.0])
+            if d >= 0:
+                top[i, j] = hi[2] - d
+                bottom[i, j] = lo[2] + ray(x, y, lo[2], [0.0, 0.0, 1.0])
+    floor = np.nanmin(bottom)
+    return bottom - floor, top - floor
+
+
+def _aabb_corners(model: mujoco.MjModel, data: mujoco.MjData, root: int) -> np.ndarray:
+    """(8 G, 3) corners of the object's geoms' bounding boxes, relative to its root body, in
+    the compiled world's axes."""
+    from vistask.envs.scene import subtree_geoms
+
+    corners = []
+    signs = np.array(np.meshgrid([-1, 1], [-1, 1], [-1, 1])).reshape(3, -1).T
+    for g in subtree_geoms(model, root):
+        centre, half = model.geom_aabb[g, :3], model.geom_aabb[g, 3:]
+        local = centre + signs * half
+        corners.append(local @ data.geom_xmat[g].reshape(3, 3).T + data.geom_xpos[g])
+    return np.concatenate(corners) - data.xpos[root]
+
+
+def pose_misfit(obj, rot: Tensor, opening: float | None = None, cell: float = CELL) -> str | None:
+    """Why the object ``obj``, resting turned by ``rot`` (3, 3), has no part a hand opening
+    ``opening`` metres wide (default: the Panda's) can close across; None when it has one."""
+    from vistask.envs.grasp_trial import PANDA_MAX_OPENING
+
+    opening = PANDA_MAX_OPENING if opening is None else opening
+    bottom, top = column_heights(obj, rot, cell)
+    narrowest = math.inf
+    for h in np.arange(CLEARANCE, np.nanmax(top), cell):
+        solid = (bottom <= h) & (top >= h)
+        parts, n = ndimage.label(solid, structure=np.ones((3, 3)))
+        for k in range(1, n + 1):
+            part = parts == k
+            width = _narrowest_width(part, cell)
+            narrowest = min(narrowest, width)
+            if width < opening or _wall_fits(part, opening, cell):
+                return None
+    return (
+        f"narrowest part {1000 * narrowest:.0f} mm across, above {1000 * CLEARANCE:.0f} mm: "
+        f"wider than the {1000 * opening:.0f} mm opening"
+    )
+
+
+def _narrowest_width(part: np.ndarray, cell: float) -> float:
+    """The least width of a (H, W) cross-section part over the horizontal directions."""
+    rows, cols = np.nonzero(part)
+    projections = np.outer(cols, np.cos(DIRECTIONS)) + np.outer(rows, np.sin(DIRECTIONS))
+    return float((np.ptp(projections, axis=0).min() + 1) * cell)
+
+
+def _wall_fits(part: np.ndarray, opening: float, cell: float) -> bool:
+    """Whether a cross-section part is a wall around a fingertip-wide hole, thinner than the
+    opening: one finger in the hole, one outside."""
+    holes = ndimage.binary_fill_holes(part) & ~part
+    if not holes.any():
+        return False
+    hole = 2 * cell * ndimage.distance_transform_edt(holes).max()
+    wall = 2 * cell * ndimage.distance_transform_edt(part).max()
+    return hole >= FINGER and wall < opening
