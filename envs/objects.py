@@ -166,9 +166,11 @@ register_object(
 
 
 def _class_name(name: str) -> str:
-    """The robosuite class name of an object name: "round_nut" -> "RoundNutObject"."""
+    """The robosuite class name of an object name: "round_nut" -> "RoundNutObject",
+    "box_object" -> "BoxObject"."""
     if name.endswith("Object"):
         return name
+    name = name.removesuffix("_object")
     return "".join(part.capitalize() for part in re.split(r"[_\-\s]+", name)) + "Object"
 
 

@@ -122,19 +122,22 @@ class TabletopWorld:
     """One MuJoCo model with a table, one instance of each object kind, and cameras.
 
     Args:
-        kinds: the objects scenes may hold (names for ``vistask.envs.objects.object_spec``).
+        kinds: the objects scenes may hold (names for ``vistask.envs.objects.object_spec``);
+            kinds of one name ("MilkObject", "milk") are one object.
         extra_cameras: cameras added to ``CAMERAS`` and robosuite's four.
     """
 
     def __init__(
         self, kinds: Sequence[str] = DEFAULT_DISTRACTORS, extra_cameras: Sequence[CameraSpec] = ()
     ) -> None:
-        specs = [object_spec(k) for k in dict.fromkeys(kinds)]
-        self.specs: dict[str, ObjectSpec] = {spec.name: spec for spec in specs}
+        self.specs: dict[str, ObjectSpec] = {}
+        for kind in dict.fromkeys(kinds):
+            spec = object_spec(kind)
+            self.specs.setdefault(spec.name, spec)
         self.kinds = list(self.specs)
         arena = table_arena()
         add_cameras(arena, (*CAMERAS.values(), *extra_cameras))
-        objects = [spec.make(spec.name) for spec in specs]
+        objects = [spec.make(name) for name, spec in self.specs.items()]
         task = ManipulationTask(mujoco_arena=arena, mujoco_robots=[], mujoco_objects=objects)
         self.sim = MjSim.from_xml_string(task.get_xml())
         # No multisampling: with it, silhouette pixels mix object and background in colour

@@ -5,9 +5,10 @@
     python scripts/bench_grasp_objects.py --address ray://head:10001 --workers 32
 
 Each object is learned on its own pose estimates (NBP, 2 distractors, seed 0) standing
-upright at a random yaw, and again laid on a random side. Writes OUT/summary.json (per object
-under "objects": sampled, best_of_10, drop_rate, pose_error_deg, position_error_mm, symmetry,
-lying_sampled; the objects left out and why; the means and the targets met), OUT/success.png,
+upright at a random yaw, and again laid on a random side, in each where some part of it fits
+the hand. Writes OUT/summary.json (per object under "objects": sampled, best_of_10, drop_rate,
+pose_error_deg, position_error_mm, symmetry, lying_sampled; the objects and the poses left out
+and why; the means and the targets met), OUT/success.png,
 and the two learn_grasps.py run folders OUT/upright and OUT/lying. Run it again with the same
 --out to go on after a stop.
 """

@@ -29,6 +29,8 @@ def test_objects_resolve_by_preset_class_or_file() -> None:
     assert object_name("round_nut") == "round_nut" and object_spec("RoundNutObject").can_tip
     assert object_spec("can").symmetry.axis is not None and not object_spec("can").can_tip
     assert object_name(MJCF) == "l_block"
+    # The class at robosuite's own sizes is not the "box" preset; its name resolves to it.
+    assert object_name("BoxObject") == object_name("box_object") == "box_object" != "box"
     assert object_spec("lemon").make("lemon_1").name == "lemon_1"
     assert object_spec("lemon").can_tip  # round about a horizontal axis: it may lie on its end
     with pytest.raises(ValueError, match="robosuite object class"):
@@ -151,6 +153,13 @@ def test_a_scene_does_not_depend_on_the_other_objects_a_world_holds() -> None:
     torch.testing.assert_close(alone.poses, among.poses, atol=2e-3, rtol=0)
     other = tabletop_world(["milk"]).generate(6, "milk", 0, cameras=())
     assert (other.poses - alone.poses).abs().max() > 0.01
+
+
+def test_a_world_holds_one_object_for_the_kinds_that_name_it() -> None:
+    world = tabletop_world(["MilkObject", "milk", "can"])
+    assert world.kinds == ["milk", "can"]
+    scene = world.generate(5, "MilkObject", 1, cameras=(), distractors=["milk", "can"])
+    assert scene.objects == ["milk", "can"]
 
 
 def test_pose_benchmark_scene_seeds_do_not_depend_on_the_object_list() -> None:

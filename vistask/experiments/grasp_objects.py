@@ -1,10 +1,11 @@
 """Grasps learned for every robosuite object that fits the Panda's hand, upright and lying,
 behind ``scripts/bench_grasp_objects.py``.
 
-Each object is learned twice with ``GraspExperiment`` (its pose estimated by NBP in every
-trial, distractors on the table): once standing upright at a random yaw, once laid on a random
-side, where it settles in a stable pose. Each is a ``learn_grasps.py`` run folder
-(``<out>/upright``, ``<out>/lying``), so that a stopped bench goes on where it stopped.
+Each object is learned with ``GraspExperiment`` (its pose estimated by NBP in every trial,
+distractors on the table) standing upright at a random yaw, and again laid on a random side,
+where it settles in a stable pose: in each of the two where some part of it fits the hand
+(``pose_misfits``). Each is a ``learn_grasps.py`` run folder (``<out>/upright``,
+``<out>/lying``), so that a stopped bench goes on where it stopped.
 """
 
 from __future__ import annotations
