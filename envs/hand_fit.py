@@ -18,6 +18,7 @@ Example:
 from __future__ import annotations
 
 import math
+import warnings
 
 import mujoco
 import numpy as np
@@ -99,6 +100,47 @@ def pose_misfit(obj, rot: Tensor, opening: float | None = None, cell: float = CE
         f"narrowest part {1000 * narrowest:.0f} mm across, above {1000 * CLEARANCE:.0f} mm: "
         f"wider than the {1000 * opening:.0f} mm opening"
     )
+
+
+def pose_misfits(spec) -> dict[str, str]:
+    """Why the object of ``ObjectSpec`` ``spec`` cannot be grasped standing as built
+    (``"upright"``: ``pose_misfit`` of its rest pose) or lying (``"lying"``: on any one of
+    the four sides ``rest_rotation`` lays it on; objects round about their upright axis, which
+    would roll away, do not lie). Empty when both fit."""
+    from vistask.envs.objects import lying_rotations, rest_rotation
+
+    misfits = {}
+    upright = pose_misfit(spec.make("probe"), rest_rotation(spec))
+    if upright is not None:
+        misfits["upright"] = upright
+    if not spec.can_tip:
+        misfits["lying"] = "round about its upright axis, it would roll away on a side"
+        return misfits
+    sides = ("-x", "+x", "-y", "+y")
+    for side, rot in zip(sides, lying_rotations(spec), strict=True):
+        reason = pose_misfit(spec.make("probe"), rot)
+        if reason is not None:
+            misfits["lying"] = f"turned {side} onto a side: {reason}"
+            break
+    return misfits
+
+
+def warn_misfits(spec, tip_probability: float) -> None:
+    """Warn when trials will place the object of ``spec`` in a pose no grasp can close across
+    (``pose_misfits``): standing as built, or (with ``tip_probability`` > 0) on a side."""
+    misfits = pose_misfits(spec)
+    if tip_probability < 1 and "upright" in misfits:
+        warnings.warn(
+            f"{spec.name} standing as built: no part fits the hand ({misfits['upright']}); "
+            "lay it on a side (tip_probability 1) or make it smaller",
+            stacklevel=2,
+        )
+    if tip_probability > 0 and spec.can_tip and "lying" in misfits:
+        warnings.warn(
+            f"{spec.name} lying: no part fits the hand ({misfits['lying']}); stand it upright "
+            "(tip_probability 0)",
+            stacklevel=2,
+        )
 
 
 def _narrowest_width(part: np.ndarray, cell: float) -> float:

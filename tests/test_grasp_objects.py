@@ -4,18 +4,16 @@
 from __future__ import annotations
 
 import json
+import warnings
 
 import pytest
 
 pytest.importorskip("robosuite")
 
 from vistask.envs import hand_fit
+from vistask.envs.hand_fit import pose_misfits, warn_misfits
 from vistask.envs.objects import lying_rotations, object_name, object_spec, rest_rotation
-from vistask.experiments.grasp_objects import (
-    bench_grasp_objects,
-    graspable_objects,
-    pose_misfits,
-)
+from vistask.experiments.grasp_objects import bench_grasp_objects, graspable_objects
 from vistask.experiments.grasps import GraspExperiment
 
 
@@ -33,12 +31,23 @@ def test_a_pose_fits_the_hand_where_some_part_is_narrower_than_the_opening() -> 
     assert "82 mm across" in hand_fit.pose_misfit(box.make("probe"), rest_rotation(box))
     assert all(hand_fit.pose_misfit(box.make("probe"), r) is None for r in lying_rotations(box))
     # Lying on its side, the 100 x 150 mm cereal box is 30 mm high: nothing to close across.
-    cereal = pose_misfits("cereal")
+    cereal = pose_misfits(object_spec("cereal"))
     assert set(cereal) == {"lying"} and "turned -x onto a side" in cereal["lying"]
     assert "100 mm across" in cereal["lying"]
-    assert pose_misfits("can") == {
+    assert pose_misfits(object_spec("can")) == {
         "lying": "round about its upright axis, it would roll away on a side"
     }
+
+
+def test_trials_in_a_pose_no_grasp_closes_across_are_warned_of() -> None:
+    with pytest.warns(UserWarning, match="box_object standing as built: no part fits"):
+        warn_misfits(object_spec("BoxObject"), 0.0)
+    with pytest.warns(UserWarning, match="cereal lying: no part fits"):
+        warn_misfits(object_spec("cereal"), 0.3)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        warn_misfits(object_spec("BoxObject"), 1.0)  # lying, it fits
+        warn_misfits(object_spec("can"), 0.3)  # it never lies
 
 
 def test_a_ring_fits_by_its_wall_with_a_finger_in_its_hole(monkeypatch) -> None:

@@ -54,30 +54,6 @@ def graspable_objects() -> tuple[list[str], dict[str, str]]:
     return kept, left_out
 
 
-def pose_misfits(kind: str) -> dict[str, str]:
-    """Why ``kind`` is not learned in a condition of ``CONDITIONS``, by condition: standing
-    upright, or lying, with no part the hand closes across (``pose_misfit``) or on any one of
-    its sides; objects round about a vertical axis do not lie. Empty when both fit."""
-    from vistask.envs.hand_fit import pose_misfit
-    from vistask.envs.objects import lying_rotations, object_spec, rest_rotation
-
-    spec = object_spec(kind)
-    misfits = {}
-    upright = pose_misfit(spec.make("probe"), rest_rotation(spec))
-    if upright is not None:
-        misfits["upright"] = upright
-    if not spec.can_tip:
-        misfits["lying"] = "round about its upright axis, it would roll away on a side"
-        return misfits
-    sides = ("-x", "+x", "-y", "+y")
-    for side, rot in zip(sides, lying_rotations(spec), strict=True):
-        reason = pose_misfit(spec.make("probe"), rot)
-        if reason is not None:
-            misfits["lying"] = f"turned {side} onto a side: {reason}"
-            break
-    return misfits
-
-
 def object_row(
     upright: dict[str, Any] | None, lying: dict[str, Any] | None, spec
 ) -> dict[str, Any]:
@@ -195,6 +171,7 @@ def bench_grasp_objects(
     lying, ``trials`` learning trials each in 5 cycles; write ``out/summary.json`` (see
     ``summarize``), ``out/success.png`` and print the table. An object is learned in the
     conditions it fits the hand in (``pose_misfits``)."""
+    from vistask.envs.hand_fit import pose_misfits
     from vistask.envs.objects import object_name, object_spec
 
     left_out: dict[str, str] = {}
@@ -203,7 +180,7 @@ def bench_grasp_objects(
     cycles = 5
     if trials < cycles:
         raise ValueError(f"trials must be at least {cycles} (one per cycle), got {trials}")
-    misfits = {kind: pose_misfits(kind) for kind in objects}
+    misfits = {kind: pose_misfits(object_spec(kind)) for kind in objects}
     runs: dict[str, dict[str, Any]] = {}
     for condition, tip in CONDITIONS.items():
         kinds = [k for k in objects if condition not in misfits[k]]

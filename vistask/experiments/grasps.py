@@ -404,11 +404,14 @@ class GraspExperiment:
         """
         from tqdm import tqdm
 
-        from vistask.envs.objects import object_name
+        from vistask.envs.hand_fit import warn_misfits
+        from vistask.envs.objects import object_name, object_spec
 
         out.mkdir(parents=True, exist_ok=True)
         check_same_settings(out / "config.json", self.settings())
         names = {kind: object_name(kind) for kind in self.objects}
+        for kind in self.objects:
+            warn_misfits(object_spec(kind), self.tip_probability)
         models = {}
         for kind, name in names.items():
             path = out / name / "model.pt"
