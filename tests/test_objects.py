@@ -162,6 +162,18 @@ def test_a_world_holds_one_object_for_the_kinds_that_name_it() -> None:
     assert scene.objects == ["milk", "can"]
 
 
+def test_a_long_target_gets_its_cluttered_scene() -> None:
+    from vistask.experiments.pose import PoseBenchmark
+    from vistask.experiments.pose_scenes import CONDITIONS
+
+    # The 300 mm wrench leaves no room for four distractors within 15 cm of the table's
+    # centre in this scene: they spread farther.
+    bench = PoseBenchmark(objects=("ratcheting_wrench",), conditions=("clutter",))
+    seed = bench.scene_seed("ratcheting_wrench", "clutter", 6)
+    scene, visible = bench.make_test_scene(seed, "ratcheting_wrench", CONDITIONS["clutter"])
+    assert len(scene.objects) == 5 and max(visible) < 1.0
+
+
 def test_pose_benchmark_scene_seeds_do_not_depend_on_the_object_list() -> None:
     from vistask.experiments.pose import PoseBenchmark
 

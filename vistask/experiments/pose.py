@@ -135,28 +135,37 @@ class PoseBenchmark:
         )
         best: tuple | None = None
         tries = 1 if condition.max_visible is None else condition.max_tries
-        for attempt in range(tries):
-            try:
-                scene = world.generate(
-                    seed * 100 + attempt,
-                    kind,
-                    condition.distractors,
-                    condition.cameras,
-                    self.image_size,
-                    condition.tip_probability,
-                    distractor_range=condition.distractor_range,
-                    distractors=pool,
-                    relight=condition.relight,
-                    occlude_from=CAMERAS[condition.cameras[0]].eye if condition.occluders else None,
-                )
-            except RuntimeError:  # no room for every distractor that close: draw again
-                continue
-            visible = visible_fraction(scene, world)
-            if max(visible) < MIN_VISIBLE:
-                continue
-            if best is None or max(visible) < max(best[1]):
-                best = (scene, visible)
-            if condition.max_visible is None or max(visible) <= condition.max_visible:
+        bounds = world.bounds[object_name(kind)]
+        # A long target leaves no room for its distractors that close: then they spread
+        # farther, by half its length.
+        spread = float((bounds[1, :2] - bounds[0, :2]).max()) / 2
+        for distractor_range in (condition.distractor_range, condition.distractor_range + spread):
+            for attempt in range(tries):
+                try:
+                    scene = world.generate(
+                        seed * 100 + attempt,
+                        kind,
+                        condition.distractors,
+                        condition.cameras,
+                        self.image_size,
+                        condition.tip_probability,
+                        distractor_range=distractor_range,
+                        distractors=pool,
+                        relight=condition.relight,
+                        occlude_from=CAMERAS[condition.cameras[0]].eye
+                        if condition.occluders
+                        else None,
+                    )
+                except RuntimeError:  # no room for every distractor that close: draw again
+                    continue
+                visible = visible_fraction(scene, world)
+                if max(visible) < MIN_VISIBLE:
+                    continue
+                if best is None or max(visible) < max(best[1]):
+                    best = (scene, visible)
+                if condition.max_visible is None or max(visible) <= condition.max_visible:
+                    break
+            if best is not None:
                 break
         if best is None:
             raise RuntimeError(f"no scene could be placed for seed {seed}")
