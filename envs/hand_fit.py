@@ -6,11 +6,12 @@ gives its solid cross-section at every height. Fingers close horizontally (a fin
 object would be under the table), their tips ``clearance`` above the table or higher. A
 cross-section part fits when it is narrower than the opening in some horizontal direction, or
 when it is a wall around a hole that a finger fits into (a nut's rim, a tube's wall) and the wall
-is thinner than the opening.
+is thinner than the opening. It is a geometric test, not a simulation: friction, the fingers'
+length and how the hand approaches are left out.
 
 Example:
     >>> from vistask.envs.objects import object_spec, rest_rotation
-    >>> spec = object_spec("BoxObject")                     # 111 x 82 x 63 mm, lying flat
+    >>> spec = object_spec("BoxObject")  # 111 x 82 x 63 mm, resting on its largest face
     >>> pose_misfit(spec.make("probe"), rest_rotation(spec))
     'narrowest part 82 mm across, above 10 mm: wider than the 80 mm opening'
 """
@@ -36,14 +37,19 @@ DIRECTIONS = np.linspace(0.0, math.pi, 36, endpoint=False)  # horizontal closing
 def column_heights(obj, rot: Tensor, cell: float = CELL) -> tuple[np.ndarray, np.ndarray]:
     """Bottom and top (H, W) of the robosuite object ``obj``'s collision geoms along vertical
     rays on a ``cell`` grid, the object turned by ``rot`` (3, 3) and resting on z = 0 (NaN where
-    a ray misses it); rows run along y, columns along x, in metres."""
+    a ray misses it); rows run along y, columns along x, in metres.
+
+    Raises:
+        ValueError: no ray meets a collision geom of the object.
+    """
     model, data, root = compile_alone(obj)
     # Rested frame -> the compiled world: undo the turn, then the root body's placement.
     to_world = data.xmat[root].reshape(3, 3) @ rot.numpy().T
     centre = data.xpos[root]
     corners = _aabb_corners(model, data, root) @ to_world  # (8, 3) in the rested frame
     lo, hi = corners.min(0) - cell, corners.max(0) + cell
-    xs, ys = np.arange(lo[0], hi[0], cell), np.arange(lo[1], hi[1], cell)
+    # Rays half a cell off the grid of the bounds: none grazes a box geom's face.
+    xs, ys = np.arange(lo[0] + cell / 2, hi[0], cell), np.arange(lo[1] + cell / 2, hi[1], cell)
     groups = np.array([1, 0, 0, 0, 0, 0], np.uint8)  # robosuite's collision geoms
     hit = np.zeros(1, np.int32)
 
@@ -57,10 +63,11 @@ def column_heights(obj, rot: Tensor, cell: float = CELL) -> tuple[np.ndarray, np
     top = np.full_like(bottom, np.nan)
     for i, y in enumerate(ys):
         for j, x in enumerate(xs):
-            d = ray(x, y, hi[2], [0.0, 0.0, -1.0])
-            if d >= 0:
-                top[i, j] = hi[2] - d
-                bottom[i, j] = lo[2] + ray(x, y, lo[2], [0.0, 0.0, 1.0])
+            down, up = ray(x, y, hi[2], [0.0, 0.0, -1.0]), ray(x, y, lo[2], [0.0, 0.0, 1.0])
+            if down >= 0 and up >= 0:
+                top[i, j], bottom[i, j] = hi[2] - down, lo[2] + up
+    if np.isnan(top).all():
+        raise ValueError(f"object {obj.name!r}: no vertical ray meets its collision geoms")
     floor = np.nanmin(bottom)
     return bottom - floor, top - floor
 
@@ -86,6 +93,8 @@ def pose_misfit(obj, rot: Tensor, opening: float | None = None, cell: float = CE
 
     opening = PANDA_MAX_OPENING if opening is None else opening
     bottom, top = column_heights(obj, rot, cell)
+    if np.nanmax(top) <= CLEARANCE:
+        return f"lower than {1000 * CLEARANCE:.0f} mm: nothing above the fingertips to close across"
     narrowest = math.inf
     for h in np.arange(CLEARANCE, np.nanmax(top), cell):
         solid = (bottom <= h) & (top >= h)
@@ -94,7 +103,7 @@ def pose_misfit(obj, rot: Tensor, opening: float | None = None, cell: float = CE
             part = parts == k
             width = _narrowest_width(part, cell)
             narrowest = min(narrowest, width)
-            if width < opening or _wall_fits(part, opening, cell):
+            if width < opening or _wall_fits(part, np.isnan(top) | (top < h), opening, cell):
                 return None
     return (
         f"narrowest part {1000 * narrowest:.0f} mm across, above {1000 * CLEARANCE:.0f} mm: "
@@ -102,43 +111,52 @@ def pose_misfit(obj, rot: Tensor, opening: float | None = None, cell: float = CE
     )
 
 
-def pose_misfits(spec) -> dict[str, str]:
-    """Why the object of ``ObjectSpec`` ``spec`` cannot be grasped standing as built
-    (``"upright"``: ``pose_misfit`` of its rest pose) or lying (``"lying"``: on any one of
-    the four sides ``rest_rotation`` lays it on; objects round about their upright axis, which
-    would roll away, do not lie). Empty when both fit."""
+def pose_misfits(spec, conditions: tuple[str, ...] = ("upright", "lying")) -> dict[str, str]:
+    """Why the object of ``ObjectSpec`` ``spec`` cannot be grasped, per condition of
+    ``conditions``: ``"upright"``, standing as built (``pose_misfit`` of its rest pose), or
+    ``"lying"``, on at least one of the four sides ``lying_rotations`` lays it on (objects
+    round about their upright axis, which would roll away, do not lie). Empty when all fit."""
     from vistask.envs.objects import lying_rotations, rest_rotation
 
     misfits = {}
-    upright = pose_misfit(spec.make("probe"), rest_rotation(spec))
-    if upright is not None:
-        misfits["upright"] = upright
+    if "upright" in conditions:
+        upright = pose_misfit(spec.make("probe"), rest_rotation(spec))
+        if upright is not None:
+            misfits["upright"] = upright
+    if "lying" not in conditions:
+        return misfits
     if not spec.can_tip:
         misfits["lying"] = "round about its upright axis, it would roll away on a side"
         return misfits
-    sides = ("-x", "+x", "-y", "+y")
-    for side, rot in zip(sides, lying_rotations(spec), strict=True):
+    turns = (
+        "-90 degrees about x",
+        "+90 degrees about x",
+        "-90 degrees about y",
+        "+90 degrees about y",
+    )
+    for turn, rot in zip(turns, lying_rotations(spec), strict=True):
         reason = pose_misfit(spec.make("probe"), rot)
         if reason is not None:
-            misfits["lying"] = f"turned {side} onto a side: {reason}"
+            misfits["lying"] = f"turned {turn}: {reason}"
             break
     return misfits
 
 
 def warn_misfits(spec, tip_probability: float) -> None:
     """Warn when trials will place the object of ``spec`` in a pose no grasp can close across
-    (``pose_misfits``): standing as built, or (with ``tip_probability`` > 0) on a side."""
-    misfits = pose_misfits(spec)
-    if tip_probability < 1 and "upright" in misfits:
+    (``pose_misfits``): standing as built, or (with ``tip_probability`` > 0) on some side."""
+    conditions = ("upright",) * (tip_probability < 1) + ("lying",) * (tip_probability > 0)
+    misfits = pose_misfits(spec, conditions)
+    if "upright" in misfits:
         warnings.warn(
             f"{spec.name} standing as built: no part fits the hand ({misfits['upright']}); "
             "lay it on a side (tip_probability 1) or make it smaller",
             stacklevel=2,
         )
-    if tip_probability > 0 and spec.can_tip and "lying" in misfits:
+    if spec.can_tip and "lying" in misfits:
         warnings.warn(
-            f"{spec.name} lying: no part fits the hand ({misfits['lying']}); stand it upright "
-            "(tip_probability 0)",
+            f"{spec.name} on some sides: no part fits the hand ({misfits['lying']}); stand it "
+            "upright (tip_probability 0)",
             stacklevel=2,
         )
 
@@ -150,10 +168,11 @@ def _narrowest_width(part: np.ndarray, cell: float) -> float:
     return float((np.ptp(projections, axis=0).min() + 1) * cell)
 
 
-def _wall_fits(part: np.ndarray, opening: float, cell: float) -> bool:
-    """Whether a cross-section part is a wall around a fingertip-wide hole, thinner than the
-    opening: one finger in the hole, one outside."""
-    holes = ndimage.binary_fill_holes(part) & ~part
+def _wall_fits(part: np.ndarray, open_above: np.ndarray, opening: float, cell: float) -> bool:
+    """Whether a (H, W) cross-section part is a wall around a fingertip-wide hole that is
+    open above (``open_above``, (H, W) bool), thinner than the opening: one finger in the
+    hole, one outside."""
+    holes = ndimage.binary_fill_holes(part) & ~part & open_above
     if not holes.any():
         return False
     hole = 2 * cell * ndimage.distance_transform_edt(holes).max()

@@ -163,6 +163,18 @@ register_object(
         can_tip=False,
     )
 )
+# The built-in presets' names: a robosuite class of one of them is named apart from it, in
+# every process, whatever a user registers.
+_BUILT_IN = frozenset(_PRESETS)
+
+
+def object_source(name: str | Path) -> str:
+    """What builds the object ``name`` names: an MJCF file's resolved path, ``preset <name>``,
+    or a robosuite class name. Names with one source name one object."""
+    text = str(name)
+    if text.endswith(".xml"):
+        return str(Path(text).resolve())
+    return f"preset {text}" if text in _PRESETS else _class_name(text)
 
 
 def _class_name(name: str) -> str:
@@ -249,7 +261,7 @@ def object_spec(name: str | Path | ObjectSpec) -> ObjectSpec:
     # A preset of fixed sizes may hold the short name ("box"): the class at robosuite's own
     # sizes is another object, so it gets another name ("box_object") in scenes and results.
     return ObjectSpec(
-        f"{snake}_object" if snake in _PRESETS else snake,
+        f"{snake}_object" if snake in _BUILT_IN else snake,
         make,
         sym,
         can_tip=_can_tip(shape),
@@ -276,7 +288,8 @@ def rest_rotation(
 
 def lying_rotations(spec: ObjectSpec) -> list[Tensor]:
     """The four (3, 3) float64 orientations ``rest_rotation`` lays ``spec`` on a side in
-    (before physics settles it): turned by -90 or +90 degrees about its x, then its y."""
+    (before physics settles it): its rest pose turned by -90 and +90 degrees about its x, then
+    by -90 and +90 degrees about its y."""
     rest = rest_rotation(spec)
     return [rest @ _side_turn(axis, sign) for axis in (0, 1) for sign in (-1.0, 1.0)]
 

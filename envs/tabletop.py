@@ -45,6 +45,7 @@ from vistask.envs.objects import (
     ObjectSpec,
     drop_pose,
     footprint_radius,
+    object_source,
     object_spec,
     place_apart,
     place_occluders,
@@ -123,7 +124,7 @@ class TabletopWorld:
 
     Args:
         kinds: the objects scenes may hold (names for ``vistask.envs.objects.object_spec``);
-            kinds of one name ("MilkObject", "milk") are one object.
+            kinds of one name and source ("MilkObject", "milk") are one object.
         extra_cameras: cameras added to ``CAMERAS`` and robosuite's four.
     """
 
@@ -131,8 +132,14 @@ class TabletopWorld:
         self, kinds: Sequence[str] = DEFAULT_DISTRACTORS, extra_cameras: Sequence[CameraSpec] = ()
     ) -> None:
         self.specs: dict[str, ObjectSpec] = {}
+        sources: dict[str, str] = {}
         for kind in dict.fromkeys(kinds):
-            spec = object_spec(kind)
+            spec, source = object_spec(kind), object_source(kind)
+            if sources.setdefault(spec.name, source) != source:
+                raise ValueError(
+                    f"{kind!r} and {sources[spec.name]!r} are other objects of one name, "
+                    f"{spec.name!r}: rename one"
+                )
             self.specs.setdefault(spec.name, spec)
         self.kinds = list(self.specs)
         arena = table_arena()

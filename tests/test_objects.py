@@ -155,11 +155,15 @@ def test_a_scene_does_not_depend_on_the_other_objects_a_world_holds() -> None:
     assert (other.poses - alone.poses).abs().max() > 0.01
 
 
-def test_a_world_holds_one_object_for_the_kinds_that_name_it() -> None:
+def test_a_world_holds_one_object_for_the_kinds_that_name_it(tmp_path) -> None:
     world = tabletop_world(["MilkObject", "milk", "can"])
     assert world.kinds == ["milk", "can"]
     scene = world.generate(5, "MilkObject", 1, cameras=(), distractors=["milk", "can"])
     assert scene.objects == ["milk", "can"]
+    mine = tmp_path / "milk.xml"  # a file named as robosuite's milk is
+    mine.write_text(Path(MJCF).read_text())
+    with pytest.raises(ValueError, match="other objects of one name, 'milk'"):
+        tabletop_world(["milk", str(mine)])
 
 
 def test_a_long_target_gets_its_cluttered_scene() -> None:

@@ -148,7 +148,7 @@ def bar_chart(summary: dict[str, Any], path: Path) -> None:
     for k, (key, label) in enumerate(
         (("sampled", "sampled"), ("best_of_10", "best of 10"), ("lying_sampled", "lying"))
     ):
-        values = [summary["objects"][n][key] or 0.0 for n in names]
+        values = [np.nan if (v := summary["objects"][n][key]) is None else v for n in names]
         ax.bar(x + (k - 1) * 0.27, values, 0.27, label=label)
     ax.axhline(TARGETS["mean_sampled"], color="grey", ls="--", lw=0.8)
     ax.set(xticks=x, ylim=(0, 1.05), ylabel="held-out success")
@@ -199,13 +199,13 @@ def bench_grasp_objects(
     rows, poses_left_out = {}, {}
     for kind in objects:
         name = object_name(kind)
+        if len(misfits[kind]) == len(CONDITIONS):
+            left_out[kind] = "; ".join(f"{c}: {why}" for c, why in misfits[kind].items())
+            continue
         if misfits[kind]:
             poses_left_out[name] = misfits[kind]
-        if len(misfits[kind]) < len(CONDITIONS):
-            upright, lying = (runs.get(c, {}).get(name) for c in CONDITIONS)
-            rows[name] = object_row(upright, lying, object_spec(kind))
-        else:
-            left_out[kind] = "fits the hand neither upright nor lying"
+        upright = runs.get("upright", {}).get(name)
+        rows[name] = object_row(upright, runs.get("lying", {}).get(name), object_spec(kind))
     summary = summarize(rows, left_out, poses_left_out)
     write_summary(out / "summary.json", summary)
     bar_chart(summary, out / "success.png")

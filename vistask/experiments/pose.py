@@ -137,8 +137,8 @@ class PoseBenchmark:
         tries = 1 if condition.max_visible is None else condition.max_tries
         bounds = world.bounds[object_name(kind)]
         # A long target leaves no room for its distractors that close: then they spread
-        # farther, by half its length.
-        spread = float((bounds[1, :2] - bounds[0, :2]).max()) / 2
+        # farther, by half its longest side.
+        spread = float((bounds[1] - bounds[0]).max()) / 2
         for distractor_range in (condition.distractor_range, condition.distractor_range + spread):
             for attempt in range(tries):
                 try:
