@@ -27,6 +27,8 @@ from scipy import ndimage
 from torch import Tensor
 
 from vistask.envs.object_shape import compile_alone
+from vistask.envs.objects import box_corners
+from vistask.envs.scene import body_bounds, subtree_geoms
 
 CELL = 0.002  # metres between the probing rays
 CLEARANCE = 0.01  # metres from the table up to the lowest height the fingertips close at
@@ -46,8 +48,8 @@ def column_heights(obj, rot: Tensor, cell: float = CELL) -> tuple[np.ndarray, np
     # Rested frame -> the compiled world: undo the turn, then the root body's placement.
     to_world = data.xmat[root].reshape(3, 3) @ rot.numpy().T
     centre = data.xpos[root]
-    corners = _aabb_corners(model, data, root) @ to_world  # (8, 3) in the rested frame
-    lo, hi = corners.min(0) - cell, corners.max(0) + cell
+    corners = box_corners(body_bounds(model, data, root, subtree_geoms(model, root)), rot)
+    lo, hi = corners.numpy().min(0) - cell, corners.numpy().max(0) + cell
     # Rays half a cell off the grid of the bounds: none grazes a box geom's face.
     xs, ys = np.arange(lo[0] + cell / 2, hi[0], cell), np.arange(lo[1] + cell / 2, hi[1], cell)
     groups = np.array([1, 0, 0, 0, 0, 0], np.uint8)  # robosuite's collision geoms
@@ -70,20 +72,6 @@ def column_heights(obj, rot: Tensor, cell: float = CELL) -> tuple[np.ndarray, np
         raise ValueError(f"object {obj.name!r}: no vertical ray meets its collision geoms")
     floor = np.nanmin(bottom)
     return bottom - floor, top - floor
-
-
-def _aabb_corners(model: mujoco.MjModel, data: mujoco.MjData, root: int) -> np.ndarray:
-    """(8 G, 3) corners of the object's geoms' bounding boxes, relative to its root body, in
-    the compiled world's axes."""
-    from vistask.envs.scene import subtree_geoms
-
-    corners = []
-    signs = np.array(np.meshgrid([-1, 1], [-1, 1], [-1, 1])).reshape(3, -1).T
-    for g in subtree_geoms(model, root):
-        centre, half = model.geom_aabb[g, :3], model.geom_aabb[g, 3:]
-        local = centre + signs * half
-        corners.append(local @ data.geom_xmat[g].reshape(3, 3).T + data.geom_xpos[g])
-    return np.concatenate(corners) - data.xpos[root]
 
 
 def pose_misfit(obj, rot: Tensor, opening: float | None = None, cell: float = CELL) -> str | None:
@@ -118,9 +106,9 @@ def pose_misfits(spec, conditions: tuple[str, ...] = ("upright", "lying")) -> di
     round about their upright axis, which would roll away, do not lie). Empty when all fit."""
     from vistask.envs.objects import lying_rotations, rest_rotation
 
-    misfits = {}
+    misfits, obj = {}, spec.make("probe")
     if "upright" in conditions:
-        upright = pose_misfit(spec.make("probe"), rest_rotation(spec))
+        upright = pose_misfit(obj, rest_rotation(spec))
         if upright is not None:
             misfits["upright"] = upright
     if "lying" not in conditions:
@@ -135,7 +123,7 @@ def pose_misfits(spec, conditions: tuple[str, ...] = ("upright", "lying")) -> di
         "+90 degrees about y",
     )
     for turn, rot in zip(turns, lying_rotations(spec), strict=True):
-        reason = pose_misfit(spec.make("probe"), rot)
+        reason = pose_misfit(obj, rot)
         if reason is not None:
             misfits["lying"] = f"turned {turn}: {reason}"
             break
