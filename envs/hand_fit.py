@@ -48,8 +48,8 @@ def column_heights(obj, rot: Tensor, cell: float = CELL) -> tuple[np.ndarray, np
     # Rested frame -> the compiled world: undo the turn, then the root body's placement.
     to_world = data.xmat[root].reshape(3, 3) @ rot.numpy().T
     centre = data.xpos[root]
-    corners = box_corners(body_bounds(model, data, root, subtree_geoms(model, root)), rot)
-    lo, hi = corners.numpy().min(0) - cell, corners.numpy().max(0) + cell
+    corners = box_corners(body_bounds(model, data, root, subtree_geoms(model, root)), rot).numpy()
+    lo, hi = corners.min(0) - cell, corners.max(0) + cell
     # Rays half a cell off the grid of the bounds: none grazes a box geom's face.
     xs, ys = np.arange(lo[0] + cell / 2, hi[0], cell), np.arange(lo[1] + cell / 2, hi[1], cell)
     groups = np.array([1, 0, 0, 0, 0, 0], np.uint8)  # robosuite's collision geoms

@@ -172,7 +172,7 @@ def bench_grasp_objects(
     ``summarize``), ``out/success.png`` and print the table. An object is learned in the
     conditions it fits the hand in (``pose_misfits``)."""
     from vistask.envs.hand_fit import pose_misfits
-    from vistask.envs.objects import object_name, object_spec
+    from vistask.envs.objects import object_spec
 
     left_out: dict[str, str] = {}
     if objects is None:
@@ -180,7 +180,8 @@ def bench_grasp_objects(
     cycles = 5
     if trials < cycles:
         raise ValueError(f"trials must be at least {cycles} (one per cycle), got {trials}")
-    misfits = {kind: pose_misfits(object_spec(kind)) for kind in objects}
+    specs = {kind: object_spec(kind) for kind in objects}
+    misfits = {kind: pose_misfits(spec) for kind, spec in specs.items()}
     runs: dict[str, dict[str, Any]] = {}
     for condition, tip in CONDITIONS.items():
         kinds = [k for k in objects if condition not in misfits[k]]
@@ -197,15 +198,15 @@ def bench_grasp_objects(
         )
         runs[condition] = experiment.run(out / condition, pictures=0)["objects"]
     rows, poses_left_out = {}, {}
-    for kind in objects:
-        name = object_name(kind)
+    for kind, spec in specs.items():
+        name = spec.name
         if len(misfits[kind]) == len(CONDITIONS):
             left_out[kind] = "; ".join(f"{c}: {why}" for c, why in misfits[kind].items())
             continue
         if misfits[kind]:
             poses_left_out[name] = misfits[kind]
         upright = runs.get("upright", {}).get(name)
-        rows[name] = object_row(upright, runs.get("lying", {}).get(name), object_spec(kind))
+        rows[name] = object_row(upright, runs.get("lying", {}).get(name), spec)
     summary = summarize(rows, left_out, poses_left_out)
     write_summary(out / "summary.json", summary)
     bar_chart(summary, out / "success.png")
