@@ -13,17 +13,26 @@ pytest.importorskip("robosuite")
 from vistask.envs import hand_fit
 from vistask.envs.hand_fit import pose_misfits, warn_misfits
 from vistask.envs.objects import lying_rotations, object_name, object_spec, rest_rotation
-from vistask.experiments.grasp_objects import bench_grasp_objects, graspable_objects
+from vistask.experiments.grasp_objects import bench_grasp_objects, robosuite_objects
 from vistask.experiments.grasps import GraspExperiment
+from vistask.runs import check_same_settings
 
 
-def test_graspable_objects_keep_what_fits_the_hand_and_say_why_others_do_not() -> None:
-    kept, left_out = graspable_objects()
-    assert {"LemonObject", "CanObject", "MilkObject", "RoundNutObject"} <= set(kept)
-    assert "does not fit between the open fingers (80 mm)" in left_out["BallObject"]
+def test_robosuite_objects_keep_what_builds_and_say_why_others_do_not() -> None:
+    kept, left_out = robosuite_objects()
+    assert {"LemonObject", "CanObject", "BallObject", "PotWithHandlesObject"} <= set(kept)
     assert "only visual geoms" in left_out["CanVisualObject"]
     assert "no free joint" in left_out["DoorObject"]
     assert not set(kept) & set(left_out)
+
+
+def test_a_bench_given_more_objects_keeps_the_settings_it_checks(tmp_path) -> None:
+    path, free = tmp_path / "config.json", ("objects",)
+    check_same_settings(path, {"objects": ["lemon"], "cycles": 5}, free)
+    check_same_settings(path, {"objects": ["lemon", "can"], "cycles": 5}, free)
+    assert json.loads(path.read_text())["objects"] == ["lemon", "can"]
+    with pytest.raises(ValueError, match=r"other settings \(cycles\)"):
+        check_same_settings(path, {"objects": ["lemon"], "cycles": 3}, free)
 
 
 def test_a_pose_fits_the_hand_where_some_part_is_narrower_than_the_opening() -> None:
@@ -37,6 +46,8 @@ def test_a_pose_fits_the_hand_where_some_part_is_narrower_than_the_opening() -> 
     assert pose_misfits(object_spec("can")) == {
         "lying": "round about its upright axis, it would roll away on a side"
     }
+    # A pot 140 mm across at its narrowest fits the hand by a handle, standing upright.
+    assert set(pose_misfits(object_spec("PotWithHandlesObject"))) == {"lying"}
 
 
 def test_trials_in_a_pose_no_grasp_closes_across_are_warned_of() -> None:

@@ -119,9 +119,15 @@ def print_table(rows: dict[str, Any], title: str = "") -> None:
         print(f"{key:<{width}}  {text}")
 
 
-def check_same_settings(path: str | Path, settings: dict) -> None:
+def check_same_settings(path: str | Path, settings: dict, free: tuple[str, ...] = ()) -> None:
     """Write ``settings`` to ``path`` (JSON), or, if a stopped run left it there, check that
-    they are the same: resuming must never mix two configurations in one folder."""
+    they are the same: resuming must never mix two configurations in one folder.
+
+    Args:
+        free: keys that may change from the stopped run to its resumption (such as the list
+            of objects of a run whose objects do not depend on one another); the file then
+            holds the new values.
+    """
     path = Path(path)
     settings = json.loads(json.dumps(_plain(settings)))
     if not path.exists():
@@ -130,11 +136,15 @@ def check_same_settings(path: str | Path, settings: dict) -> None:
     before = read_json(path)
     if not isinstance(before, dict):
         raise ValueError(f"{path} holds no settings (not a JSON object): remove or repair it")
-    if before != settings:
-        changed = sorted(
-            k for k in settings.keys() | before.keys() if before.get(k) != settings.get(k)
-        )
+    changed = sorted(
+        k
+        for k in settings.keys() | before.keys()
+        if before.get(k) != settings.get(k) and k not in free
+    )
+    if changed:
         raise ValueError(
             f"{path.parent} holds a run with other settings ({', '.join(changed)}); resume it "
             "with the same settings or pick another output folder"
         )
+    if before != settings:
+        write_json(path, settings)

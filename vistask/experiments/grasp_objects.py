@@ -26,11 +26,10 @@ TARGETS = {"mean_sampled": 0.85, "mean_best_of_10": 0.93, "lowest_sampled": 0.70
 held-out success, the lowest sampled success of any object, the mean success lying."""
 
 
-def graspable_objects() -> tuple[list[str], dict[str, str]]:
-    """The robosuite object classes whose narrowest extent fits between the Panda's open
-    fingers, and the others with the reason each is left out."""
-    from vistask.envs.grasp_trial import PANDA_MAX_OPENING
-    from vistask.envs.object_shape import surface_points
+def robosuite_objects() -> tuple[list[str], dict[str, str]]:
+    """The classes of ``robosuite.models.objects`` that build a graspable object, and the
+    others with the reason each is left out (a fixture, visual geoms only, arguments with no
+    default). Whether an object fits the hand is ``pose_misfits``'s to say."""
     from vistask.envs.objects import _robosuite_classes, object_spec
 
     kept, left_out = [], {}
@@ -38,17 +37,9 @@ def graspable_objects() -> tuple[list[str], dict[str, str]]:
         if name in ("MujocoObject", "MujocoXMLObject"):
             continue  # the bases of every object, not objects
         try:
-            spec = object_spec(name)
+            object_spec(name)
         except ValueError as error:
             left_out[name] = str(error)
-            continue
-        points = surface_points(spec.make("probe"), n=4000)
-        narrowest = float((points.max(0).values - points.min(0).values).min())
-        if narrowest >= PANDA_MAX_OPENING:
-            left_out[name] = (
-                f"its narrowest extent, {1000 * narrowest:.0f} mm, does not fit between the "
-                f"open fingers ({1000 * PANDA_MAX_OPENING:.0f} mm)"
-            )
         else:
             kept.append(name)
     return kept, left_out
@@ -167,7 +158,7 @@ def bench_grasp_objects(
     num_envs: int = 2,
     address: str | None = None,
 ) -> dict[str, Any]:
-    """Learn and score grasps of ``objects`` (default: ``graspable_objects()``) upright and
+    """Learn and score grasps of ``objects`` (default: ``robosuite_objects()``) upright and
     lying, ``trials`` learning trials each in 5 cycles; write ``out/summary.json`` (see
     ``summarize``), ``out/success.png`` and print the table. An object is learned in the
     conditions it fits the hand in (``pose_misfits``)."""
@@ -176,7 +167,7 @@ def bench_grasp_objects(
 
     left_out: dict[str, str] = {}
     if objects is None:
-        objects, left_out = graspable_objects()
+        objects, left_out = robosuite_objects()
     cycles = 5
     if trials < cycles:
         raise ValueError(f"trials must be at least {cycles} (one per cycle), got {trials}")

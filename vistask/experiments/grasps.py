@@ -395,7 +395,8 @@ class GraspExperiment:
         objects already finished (``<name>/summary.json``) are kept, the one in progress
         continues after its last finished cycle (``<name>/checkpoint.pt``), with the results
         of a run straight through. The settings must be those of the stopped run
-        (``config.json``).
+        (``config.json``), but for the objects: each object's trials are the same whatever
+        the others, so a finished run given more objects learns only the new ones.
 
         Args:
             out: the run's folder.
@@ -408,7 +409,7 @@ class GraspExperiment:
         from vistask.envs.objects import object_name, object_spec
 
         out.mkdir(parents=True, exist_ok=True)
-        check_same_settings(out / "config.json", self.settings())
+        check_same_settings(out / "config.json", self.settings(), free=("objects",))
         names = {kind: object_name(kind) for kind in self.objects}
         for kind in self.objects:
             warn_misfits(object_spec(kind), self.tip_probability)
