@@ -2,12 +2,20 @@
 hand can close across: the test behind the objects and poses ``bench_grasp_objects.py`` keeps.
 
 The object's collision geoms are probed with vertical rays on a grid (``column_heights``), which
-gives its solid cross-section at every height. Fingers close horizontally (a finger under the
-object would be under the table), their tips ``clearance`` above the table or higher. A
-cross-section part fits when it is narrower than the opening in some horizontal direction, or
-when it is a wall around a hole that a finger fits into (a nut's rim, a tube's wall) and the wall
-is thinner than the opening. It is a geometric test, not a simulation: friction, the fingers'
-length and how the hand approaches are left out.
+gives its solid cross-section at every height. Fingers come down from above and close
+horizontally (a finger under the object would be under the table), their tips ``clearance``
+above the table or higher. A cross-section part fits when, in some horizontal direction:
+
+- it is narrower than the opening;
+- the fingers reach it: nothing of the object lies above the closing height just beyond the
+  part on either side (a ball's lower half is under its widest circle);
+- its sides face the fingers: above the closing height the part narrows by at most ``SLOPE``
+  times the height climbed on each side (the rim of a ball's cap slopes away, and the closing
+  fingers squeeze it out).
+
+A part also fits when it is a wall around a hole that a finger fits into (a nut's rim, a tube's
+wall) and the wall is thinner than the opening. It is a geometric test, not a simulation: the
+fingers' length, the object's weight and how the hand approaches are left out.
 
 Example:
     >>> from vistask.envs.objects import object_spec, rest_rotation
@@ -32,7 +40,10 @@ from vistask.envs.scene import body_bounds, subtree_geoms
 
 CELL = 0.002  # metres between the probing rays
 CLEARANCE = 0.01  # metres from the table up to the lowest height the fingertips close at
+RISE = 0.004  # metres above the closing height over which a side's lean is measured
 FINGER = 0.012  # metres: a hole this wide takes a fingertip
+SLOPE = 0.7  # most a side may lean away from the fingers, metres per metre (35 degrees):
+# inside the 45 degrees that robosuite objects' friction of 1 holds, with room for the weight
 DIRECTIONS = np.linspace(0.0, math.pi, 36, endpoint=False)  # horizontal closing directions
 
 
@@ -83,16 +94,25 @@ def pose_misfit(obj, rot: Tensor, opening: float | None = None, cell: float = CE
     bottom, top = column_heights(obj, rot, cell)
     if np.nanmax(top) <= CLEARANCE:
         return f"lower than {1000 * CLEARANCE:.0f} mm: nothing above the fingertips to close across"
-    narrowest = math.inf
+    narrowest, fitting = math.inf, False
     for h in np.arange(CLEARANCE, np.nanmax(top), cell):
         solid = (bottom <= h) & (top >= h)
         parts, n = ndimage.label(solid, structure=np.ones((3, 3)))
         for k in range(1, n + 1):
             part = parts == k
-            width = _narrowest_width(part, cell)
-            narrowest = min(narrowest, width)
-            if width < opening or _wall_fits(part, np.isnan(top) | (top < h), opening, cell):
+            widths = _widths(part, cell)
+            narrowest = min(narrowest, widths.min())
+            fitting |= bool((widths < opening).any())
+            open_above = np.isnan(top) | (top < h)
+            if _closes_across(part, top - h, open_above, widths < opening, cell):
                 return None
+            if _wall_fits(part, open_above, opening, cell):
+                return None
+    if fitting:
+        return (
+            f"no part narrower than the {1000 * opening:.0f} mm opening that fingers from above "
+            f"reach with its sides facing them (a rounded top or underside)"
+        )
     return (
         f"narrowest part {1000 * narrowest:.0f} mm across, above {1000 * CLEARANCE:.0f} mm: "
         f"wider than the {1000 * opening:.0f} mm opening"
@@ -149,11 +169,42 @@ def warn_misfits(spec, tip_probability: float) -> None:
         )
 
 
-def _narrowest_width(part: np.ndarray, cell: float) -> float:
-    """The least width of a (H, W) cross-section part over the horizontal directions."""
-    rows, cols = np.nonzero(part)
-    projections = np.outer(cols, np.cos(DIRECTIONS)) + np.outer(rows, np.sin(DIRECTIONS))
-    return float((np.ptp(projections, axis=0).min() + 1) * cell)
+def _projections(cells: np.ndarray) -> np.ndarray:
+    """(N, D) positions, in cells, of the N true cells of (H, W) ``cells`` along each of the
+    ``DIRECTIONS``."""
+    rows, cols = np.nonzero(cells)
+    return np.outer(cols, np.cos(DIRECTIONS)) + np.outer(rows, np.sin(DIRECTIONS))
+
+
+def _widths(part: np.ndarray, cell: float) -> np.ndarray:
+    """(D,) widths in metres of a (H, W) cross-section part along each of the ``DIRECTIONS``."""
+    return (np.ptp(_projections(part), axis=0) + 1) * cell
+
+
+def _closes_across(
+    part: np.ndarray, rise: np.ndarray, open_above: np.ndarray, closable: np.ndarray, cell: float
+) -> bool:
+    """Whether fingers from above close across a (H, W) cross-section part along one of the
+    ``closable`` (D,) directions: the cells just beyond it on both sides are ``open_above``
+    ((H, W) bool), and where the part climbs ``RISE`` higher (or to its top, if nearer; ``rise``
+    is the (H, W) height of each column's top above the cross-section, metres) it is
+    narrower on each side by at most ``SLOPE`` times the climb. A part climbing less than a
+    cell has no side to hold."""
+    climb = min(RISE, float(rise[part].max()))
+    if not closable.any() or climb < cell:
+        return False
+    ring = ndimage.binary_dilation(part, np.ones((5, 5))) & ~part
+    here, beyond = _projections(part), _projections(ring)
+    up = _projections(part & (rise >= climb))
+    blocked = ~open_above[ring]
+    lean = SLOPE * climb / cell  # cells
+    for d in np.flatnonzero(closable):
+        lo, hi = here[:, d].min(), here[:, d].max()
+        if blocked[beyond[:, d] < lo].any() or blocked[beyond[:, d] > hi].any():
+            continue
+        if up[:, d].min() - lo <= lean and hi - up[:, d].max() <= lean:
+            return True
+    return False
 
 
 def _wall_fits(part: np.ndarray, open_above: np.ndarray, opening: float, cell: float) -> bool:

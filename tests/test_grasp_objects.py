@@ -50,6 +50,15 @@ def test_a_pose_fits_the_hand_where_some_part_is_narrower_than_the_opening() -> 
     assert set(pose_misfits(object_spec("PotWithHandlesObject"))) == {"lying"}
 
 
+def test_fingers_from_above_hold_no_ball_by_its_rounded_top_or_underside(monkeypatch) -> None:
+    ball = object_spec("BallObject")  # 111 mm across
+    resting = ball.make("probe"), rest_rotation(ball)
+    assert "rounded top or underside" in hand_fit.pose_misfit(*resting)
+    # Its cap leans 45 degrees where it is 80 mm across: let sides lean that far and it fits.
+    monkeypatch.setattr(hand_fit, "SLOPE", 1.5)
+    assert hand_fit.pose_misfit(*resting) is None
+
+
 def test_trials_in_a_pose_no_grasp_closes_across_are_warned_of() -> None:
     with pytest.warns(UserWarning, match="box_object standing as built: no part fits"):
         warn_misfits(object_spec("BoxObject"), 0.0)
