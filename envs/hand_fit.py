@@ -97,14 +97,16 @@ def pose_misfit(obj, rot: Tensor, opening: float | None = None, cell: float = CE
     narrowest, fitting = math.inf, False
     for h in np.arange(CLEARANCE, np.nanmax(top), cell):
         solid = (bottom <= h) & (top >= h)
+        open_above = np.isnan(top) | (top < h)
         parts, n = ndimage.label(solid, structure=np.ones((3, 3)))
         for k in range(1, n + 1):
             part = parts == k
-            widths = _widths(part, cell)
+            here = _projections(part)
+            widths = (np.ptp(here, axis=0) + 1) * cell
+            closable = widths < opening
             narrowest = min(narrowest, widths.min())
-            fitting |= bool((widths < opening).any())
-            open_above = np.isnan(top) | (top < h)
-            if _closes_across(part, top - h, open_above, widths < opening, cell):
+            fitting |= bool(closable.any())
+            if _closes_across(part, here, top - h, open_above, closable, cell):
                 return None
             if _wall_fits(part, open_above, opening, cell):
                 return None
@@ -176,25 +178,26 @@ def _projections(cells: np.ndarray) -> np.ndarray:
     return np.outer(cols, np.cos(DIRECTIONS)) + np.outer(rows, np.sin(DIRECTIONS))
 
 
-def _widths(part: np.ndarray, cell: float) -> np.ndarray:
-    """(D,) widths in metres of a (H, W) cross-section part along each of the ``DIRECTIONS``."""
-    return (np.ptp(_projections(part), axis=0) + 1) * cell
-
-
 def _closes_across(
-    part: np.ndarray, rise: np.ndarray, open_above: np.ndarray, closable: np.ndarray, cell: float
+    part: np.ndarray,
+    here: np.ndarray,
+    rise: np.ndarray,
+    open_above: np.ndarray,
+    closable: np.ndarray,
+    cell: float,
 ) -> bool:
-    """Whether fingers from above close across a (H, W) cross-section part along one of the
-    ``closable`` (D,) directions: the cells just beyond it on both sides are ``open_above``
-    ((H, W) bool), and where the part climbs ``RISE`` higher (or to its top, if nearer; ``rise``
-    is the (H, W) height of each column's top above the cross-section, metres) it is
-    narrower on each side by at most ``SLOPE`` times the climb. A part climbing less than a
-    cell has no side to hold."""
+    """Whether fingers from above close across a (H, W) cross-section part (its cells along
+    the ``DIRECTIONS``: ``here`` = ``_projections(part)``) along one of the ``closable`` (D,)
+    directions: the cells just beyond it on both sides are ``open_above`` ((H, W) bool), and
+    where the part climbs ``RISE`` higher (or to its top, if nearer; ``rise`` is the (H, W)
+    height of each column's top above the cross-section, metres) it is narrower on each side
+    by at most ``SLOPE`` times the climb. A part climbing less than a cell has no side to
+    hold."""
     climb = min(RISE, float(rise[part].max()))
     if not closable.any() or climb < cell:
         return False
     ring = ndimage.binary_dilation(part, np.ones((5, 5))) & ~part
-    here, beyond = _projections(part), _projections(ring)
+    beyond = _projections(ring)
     up = _projections(part & (rise >= climb))
     blocked = ~open_above[ring]
     lean = SLOPE * climb / cell  # cells
