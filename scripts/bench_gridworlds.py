@@ -8,7 +8,9 @@ python scripts/bench_gridworlds.py --budgets 10000 25000 --out runs/g   # again:
 python scripts/bench_gridworlds.py --address ray://head:10001       # on a running Ray cluster
 
 Writes runs.jsonl (one line a finished run), summary.json
-(summary[env][method]["success"][str(budget)]: IQM over seeds) and success.png.
+(summary[env][method]["success"][str(budget)]: IQM over seeds; summary[env]["rlvc"]
+["percept_table"]: the same for Q solved on each RLVC run's own distinct percepts, what its
+interactions allow without visual classes) and success.png.
 """
 
 import argparse

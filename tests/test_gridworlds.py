@@ -12,7 +12,9 @@ from vistask.experiments.gridworlds import (
     bench_gridworlds,
     grid_runs,
     make_gridworld,
+    percept_table_policy,
     success_rate,
+    summarise,
 )
 
 ENV = "MiniGrid-Empty-5x5-v0"
@@ -56,3 +58,25 @@ def test_the_benchmark_writes_its_summary_and_resumes_what_is_missing(tmp_path, 
     assert "seed 0" not in capsys.readouterr().out  # nothing ran again
     with pytest.raises(ValueError, match="unknown methods"):
         bench_gridworlds([ENV], ["dqn"], [0], [1024], out, workers=1)
+
+
+def test_the_percept_table_acts_on_what_the_database_holds_where_the_classes_cannot():
+    from vistask.agents import RLVCAgent
+
+    # One stage on one database leaves one class: its greedy action never reaches the goal.
+    agent = RLVCAgent(make_gridworld(ENV), databases=1, max_stages=1, n_envs=8, seed=0)
+    agent.learn(3000)
+    assert agent.rlvc.n_classes == 1 and agent.rewards_seen > 0
+    assert success_rate(lambda x: agent.predict(x)[0], ENV, episodes=10) == 0.0
+    assert success_rate(percept_table_policy(agent), ENV, episodes=10) == 1.0
+
+
+def test_the_summary_gives_the_percept_table_where_the_records_hold_it():
+    run = {"env_id": ENV, "method": "rlvc", "budgets": [1000]}
+    records = [
+        {**run, "seed": 0, "success": [0.0], "percept_table": [1.0]},
+        {**run, "seed": 1, "success": [0.5]},  # a record from before the field
+    ]
+    entry = summarise(records, [ENV], ["rlvc"], [0, 1], [1000])[ENV]["rlvc"]
+    assert entry["per_seed"]["1000"] == {"0": 0.0, "1": 0.5}
+    assert entry["percept_table"] == {"1000": 1.0}

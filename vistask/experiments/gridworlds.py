@@ -10,10 +10,13 @@ from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
+import torch
 
 from vistask.checks import check_at_least
 from vistask.experiments.statistics import iqm_curves
 from vistask.parallel import Outcome, map_runs
+from vistask.rlvc.presence import PackedPresence
+from vistask.rlvc.solver import estimate_mdp, value_iteration
 from vistask.runs import (
     append_record,
     check_same_settings,
@@ -115,9 +118,43 @@ def grid_runs(
     return sorted(runs, key=lambda r: (r.method == "random", -max(r.budgets) * len(r.budgets)))
 
 
+def percept_table_policy(agent) -> Policy:
+    """Greedy policy of Q solved on the distinct feature sets of a learned ``RLVCAgent``'s own
+    database, each a state of its own (no visual classes); a percept whose feature set is not in
+    the database gets the agent's action. Where the percepts of a task repeat exactly, its
+    success says what the interactions allow: above the agent's, the classes lose it."""
+    db = agent.database
+    packed = db.presence.numpy().packed
+    sets, state_of = np.unique(packed, axis=0, return_inverse=True)
+    state_of = torch.from_numpy(state_of.reshape(-1))
+    mdp = estimate_mdp(
+        state_of[db.obs],
+        db.actions,
+        db.rewards,
+        state_of[db.next_obs],
+        db.terminal,
+        len(sets),
+        agent.action_space.n,
+    )
+    greedy = value_iteration(mdp, agent.gamma).argmax(dim=1).numpy()
+    acted = (mdp.counts > 0).any(dim=1).numpy()  # sets only ever met as successors: no action
+    index = {row.tobytes(): i for i, row in enumerate(sets) if acted[i]}
+
+    def policy(frames: np.ndarray) -> np.ndarray:
+        presence = agent._presence(frames)
+        actions = agent._greedy(presence)
+        rows = PackedPresence.from_dense(presence).numpy().packed
+        known = [index.get(row.tobytes()) for row in rows]
+        return np.array(
+            [a if i is None else greedy[i] for a, i in zip(actions, known, strict=True)]
+        )
+
+    return policy
+
+
 def run_grid(run: GridRun) -> dict:
-    """Train and score one run; returns its record: success, seconds and (RLVC) classes and
-    rewards seen, one entry per budget."""
+    """Train and score one run; returns its record: success, seconds and (RLVC) classes,
+    rewards seen and the success of ``percept_table_policy``, one entry per budget."""
     start = time.perf_counter()
     record = {**asdict(run), "success": [], "seconds": []}
     if run.method == "rlvc":
@@ -130,6 +167,7 @@ def run_grid(run: GridRun) -> dict:
         record["success"].append(success_rate(lambda x: agent.predict(x)[0], run.env_id))
         record |= {"seconds": [seconds], "classes": [agent.rlvc.n_classes]}
         record["rewards_seen"] = [agent.rewards_seen]
+        record["percept_table"] = [success_rate(percept_table_policy(agent), run.env_id)]
     elif run.method == "ppo":
         record |= _run_ppo(run, start)
     else:
@@ -191,7 +229,8 @@ def bench_gridworlds(
     Returns:
         The summary: ``summary[env][method]["success"][str(budget)]`` the IQM success over
         seeds, ``["to_reach"]`` the smallest budget whose IQM reaches ``SUCCESS`` (None:
-        none), ``summary["failed"]`` the runs that raised.
+        none), ``summary[env]["rlvc"]["percept_table"][str(budget)]`` the IQM success of
+        ``percept_table_policy``, ``summary["failed"]`` the runs that raised.
     """
     unknown = sorted(set(methods) - set(METHODS))
     if unknown:
@@ -230,6 +269,11 @@ def bench_gridworlds(
             for env_id in envs
             for method, entry in summary[env_id].items()
         }
+        | {
+            f"{env_id} rlvc percept table": " ".join(f"{s:.2f}" for s in table.values())
+            for env_id in envs
+            if (table := summary[env_id].get("rlvc", {}).get("percept_table"))
+        }
     )
     return summary
 
@@ -247,34 +291,47 @@ def summarise(
 ) -> dict:
     """Per env and method: IQM success over the seeds at each budget with its 95% interval,
     the budget that reaches ``SUCCESS`` and each seed's success (only the seeds that ran, if
-    the benchmark stopped)."""
+    the benchmark stopped); for RLVC also ``percept_table``, the IQM success of
+    ``percept_table_policy`` where the records hold it."""
     summary: dict = {"budgets": list(budgets), "seeds": list(seeds), "episodes": EPISODES}
     for env_id in envs:
         summary[env_id] = {}
         for method in methods:
-            table = np.full((len(seeds), len(budgets)), np.nan)
-            for r in records:
-                if r["env_id"] != env_id or r["method"] != method or r["seed"] not in seeds:
-                    continue
-                for budget, score in zip(r["budgets"], r["success"], strict=True):
-                    if budget in budgets:
-                        table[seeds.index(r["seed"]), budgets.index(budget)] = score
-            entry = {"success": {}, "interval": {}, "to_reach": None, "per_seed": {}}
-            for column, budget in zip(table.T, budgets, strict=True):
-                done = column[~np.isnan(column)]  # a stopped benchmark: the seeds that ran
-                if not len(done):
-                    continue
-                iqm, low, high = (float(v[0]) for v in iqm_curves({method: done[:, None]})[method])
-                entry["success"][str(budget)] = iqm
-                entry["interval"][str(budget)] = [low, high]
-                entry["per_seed"][str(budget)] = {
-                    str(seed): float(v) for seed, v in zip(seeds, column, strict=True) if v == v
-                }
-                if entry["to_reach"] is None and iqm >= SUCCESS:
-                    entry["to_reach"] = budget
-            if entry["success"]:
-                summary[env_id][method] = entry
+            mine = [r for r in records if r["env_id"] == env_id and r["method"] == method]
+            entry = _iqm_entry(mine, "success", method, seeds, budgets)
+            if not entry["success"]:
+                continue
+            table = _iqm_entry(mine, "percept_table", method, seeds, budgets)["success"]
+            if table:
+                entry["percept_table"] = table
+            summary[env_id][method] = entry
     return summary
+
+
+def _iqm_entry(
+    records: list[dict], field: str, method: str, seeds: Sequence[int], budgets: Sequence[int]
+) -> dict:
+    """IQM over seeds of the records' ``field`` at each budget (see ``summarise``)."""
+    table = np.full((len(seeds), len(budgets)), np.nan)
+    for r in records:
+        if r["seed"] in seeds and field in r:
+            for budget, score in zip(r["budgets"], r[field], strict=True):
+                if budget in budgets:
+                    table[seeds.index(r["seed"]), budgets.index(budget)] = score
+    entry = {"success": {}, "interval": {}, "to_reach": None, "per_seed": {}}
+    for column, budget in zip(table.T, budgets, strict=True):
+        done = column[~np.isnan(column)]  # a stopped benchmark: the seeds that ran
+        if not len(done):
+            continue
+        iqm, low, high = (float(v[0]) for v in iqm_curves({method: done[:, None]})[method])
+        entry["success"][str(budget)] = iqm
+        entry["interval"][str(budget)] = [low, high]
+        entry["per_seed"][str(budget)] = {
+            str(seed): float(v) for seed, v in zip(seeds, column, strict=True) if v == v
+        }
+        if entry["to_reach"] is None and iqm >= SUCCESS:
+            entry["to_reach"] = budget
+    return entry
 
 
 def plot_success(
@@ -298,6 +355,10 @@ def plot_success(
             ax.plot(x, list(entry["success"].values()), marker="o", label=method)
             low, high = zip(*entry["interval"].values(), strict=True)
             ax.fill_between(x, low, high, alpha=0.2)
+            if "percept_table" in entry:
+                table = entry["percept_table"]
+                x = [int(b) for b in table]
+                ax.plot(x, list(table.values()), "k--", marker=".", label=f"{method} percept table")
         ax.axhline(SUCCESS, color="k", linestyle=":", linewidth=0.8)
         ax.set(title=env_id.removeprefix("MiniGrid-"), xscale="log", ylim=(-0.03, 1.03))
         ax.set_xlabel("interactions")
