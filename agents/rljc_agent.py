@@ -8,7 +8,7 @@ import gymnasium as gym
 import numpy as np
 import torch
 
-from vistask.agents.visual_agent import VisualAgent
+from vistask.agents.visual_agent import MAX_BLOCKED, VisualAgent
 from vistask.checks import checked
 from vistask.rlvc import RLJC, JointClassifier
 
@@ -50,7 +50,14 @@ class RLJCAgent(VisualAgent):
         max_stages: stage cap of the stages that follow each database (>= 1, default 300).
         epsilon: share of exploring draws inside a random compatible box, in the later
             databases and in ``predict(deterministic=False)`` (in [0, 1], default 0.1).
-        n_envs: episodes collected side by side on the classes (>= 1, default 128).
+        n_envs: episodes collected side by side on the classes, on copies of the env made
+            again by ``gym.make`` from its spec (settings changed after ``gym.make`` do
+            not reach them) or deep-copied (>= 1, default 128).
+        max_blocked: an exploring episode (databases after the first) also ends after this
+            many steps in a row that leave the view unchanged, so that a policy stuck against
+            a wall does not fill the database (0: only where the env ends it, for envs whose
+            view can stay the same while their state changes, such as a wait action or a
+            blank stretch; >= 0, default 2).
         max_keypoints: strongest SIFT keypoints kept per percept (0: all; default 24).
         contrast_threshold: SIFT's detection threshold (> 0, default 0.02; lower: more,
             weaker keypoints).
@@ -72,6 +79,7 @@ class RLJCAgent(VisualAgent):
         max_stages: int = 300,
         epsilon: float = 0.1,
         n_envs: int = 128,
+        max_blocked: int = MAX_BLOCKED,
         max_keypoints: int = 24,
         contrast_threshold: float = 0.02,
         gamma: float | None = None,
@@ -92,6 +100,7 @@ class RLJCAgent(VisualAgent):
             gamma,
             tensorboard_log,
             seed,
+            max_blocked,
         )
 
     @property

@@ -12,7 +12,7 @@ import gymnasium as gym
 import numpy as np
 import torch
 
-from vistask.agents.visual_agent import VisualAgent
+from vistask.agents.visual_agent import MAX_BLOCKED, VisualAgent
 from vistask.checks import check_at_least, check_bools, check_integers, checked
 from vistask.features.vocabulary import VOCABULARY_GROUPS
 from vistask.parallel import check_not_importing_main
@@ -69,9 +69,10 @@ class RLVCAgent(VisualAgent):
     the first database) reduces the variance of the TD errors significantly. A second
     ``learn`` call continues from what was learned.
 
-    Episodes end where the env ends them (terminal states, its time limit). An env whose
-    percepts show views side by side gives their widths in a ``panel_widths`` attribute: SIFT
-    then runs on each view alone. Callbacks (SB3's ``BaseCallback``, a list, or a function)
+    Episodes end where the env ends them (terminal states, its time limit), and an exploring
+    one also after ``max_blocked`` unchanged views in a row. An env whose percepts show views
+    side by side gives their widths in a ``panel_widths`` attribute: SIFT then runs on each
+    view alone. Callbacks (SB3's ``BaseCallback``, a list, or a function)
     are called once per stage; returning False stops learning. With ``tensorboard_log``, every
     stage logs ``rlvc/classes``, ``rlvc/selected_features``, ``rlvc/mean_abs_td``,
     ``rlvc/splits`` and ``rollout/ep_rew_mean``, with the stage as the step.
@@ -94,7 +95,14 @@ class RLVCAgent(VisualAgent):
         max_stages: stage cap of the stages that follow each database (>= 1, default 300).
         epsilon: exploration rate of the epsilon-greedy databases and of
             ``predict(deterministic=False)`` (in [0, 1], default 0.1).
-        n_envs: episodes collected side by side on the classes (>= 1, default 128).
+        n_envs: episodes collected side by side on the classes, on copies of the env made
+            again by ``gym.make`` from its spec (settings changed after ``gym.make`` do
+            not reach them) or deep-copied (>= 1, default 128).
+        max_blocked: an exploring episode (databases after the first) also ends after this
+            many steps in a row that leave the view unchanged, so that a policy stuck against
+            a wall does not fill the database (0: only where the env ends it, for envs whose
+            view can stay the same while their state changes, such as a wait action or a
+            blank stretch; >= 0, default 2).
         max_keypoints: strongest SIFT keypoints kept per percept (0: all; default 24).
         contrast_threshold: SIFT's detection threshold (> 0, default 0.005: low, so that dark
             and smooth views still show keypoints).
@@ -132,6 +140,7 @@ class RLVCAgent(VisualAgent):
         max_stages: int = 300,
         epsilon: float = 0.1,
         n_envs: int = 128,
+        max_blocked: int = MAX_BLOCKED,
         max_keypoints: int = 24,
         contrast_threshold: float = 0.005,
         compounds: bool = False,
@@ -157,6 +166,7 @@ class RLVCAgent(VisualAgent):
             gamma,
             tensorboard_log,
             seed,
+            max_blocked,
         )
         check_bools(compounds=compounds, nearest_seen=nearest_seen)
         if not isinstance(compaction, Compaction):

@@ -4,6 +4,7 @@ callbacks and TensorBoard, ``predict`` on one image or a batch, ``save`` and ``l
 
 from __future__ import annotations
 
+import numbers
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -35,10 +36,11 @@ from vistask.rlvc import (
     check_image_env,
     collect_chunks,
 )
+from vistask.rlvc.copies import copy_env, steps_own_copies
 from vistask.rlvc.split import CELL_BYTES, TABLE_CELLS
 from vistask.saving import load_state, save_state
 
-MAX_BLOCKED = 2  # an epsilon-greedy episode ends after this many blocked moves in a row
+MAX_BLOCKED = 2  # default: an exploring episode ends after this many unchanged views in a row
 VOCABULARY_SAMPLE = 20_000  # descriptors that k-means fits the vocabulary on
 SIFT_CHUNK = 1024  # percepts of the first database extracted between two bar updates
 PERCEPTS_PER_CHUNK = 16_384  # images a database holds at once while it is collected
@@ -96,6 +98,7 @@ class VisualAgent(SB3Model):
         gamma: float | None,
         tensorboard_log: str | Path | None,
         seed: int,
+        max_blocked: int = MAX_BLOCKED,
     ) -> None:
         counts = {
             "n_words": n_words,
@@ -105,9 +108,10 @@ class VisualAgent(SB3Model):
             "n_envs": n_envs,
             "max_keypoints": max_keypoints,
             "seed": seed,
+            "max_blocked": max_blocked,
         }
         check_integers(**counts)
-        check_at_least(0, seed=seed)
+        check_at_least(0, seed=seed, max_blocked=max_blocked)
         check_at_least(2, n_words=n_words, min_count=min_count)
         check_at_least(1, databases=databases, max_stages=max_stages, n_envs=n_envs)
         check_at_least(0, max_keypoints=max_keypoints)
@@ -117,14 +121,20 @@ class VisualAgent(SB3Model):
             raise ValueError(f"alpha must be in (0, 1), got {alpha!r}")
         if not 0 <= epsilon <= 1:
             raise ValueError(f"epsilon must be in [0, 1], got {epsilon!r}")
-        if gamma is None:
-            gamma = getattr(env.unwrapped, "gamma", 0.99) if env is not None else 0.99
+        if gamma is None and env is not None and hasattr(env.unwrapped, "gamma"):
+            gamma = env.unwrapped.gamma
+            if not (isinstance(gamma, numbers.Real) and 0 <= gamma < 1):
+                raise ValueError(
+                    f"the env's gamma attribute ({gamma!r}) is the agent's discount unless "
+                    "gamma is given, and a discount is a number in [0, 1): pass gamma"
+                )
+        gamma = 0.99 if gamma is None else gamma
         check_discount(gamma)
         self.n_words, self.databases = int(n_words), int(databases)
         self.alpha, self.min_count, self.max_stages = float(alpha), int(min_count), max_stages
         self.epsilon, self.n_envs, self.max_keypoints = float(epsilon), n_envs, max_keypoints
         self.contrast_threshold = float(contrast_threshold)
-        self.gamma, self.seed = float(gamma), int(seed)
+        self.gamma, self.seed, self.max_blocked = float(gamma), int(seed), int(max_blocked)
         self.tensorboard_log = tensorboard_log
         self.vocabulary_groups = VOCABULARY_GROUPS
         self.env: gym.Env | None = None
@@ -311,13 +321,29 @@ class VisualAgent(SB3Model):
         return need / 2**20
 
     def _check_memory(self, total_timesteps: int) -> None:
-        need, free = self.memory_needed_mb(total_timesteps), psutil.virtual_memory().available
+        copies = self._env_copies_mb()
+        need = self.memory_needed_mb(total_timesteps) + copies
+        free = psutil.virtual_memory().available
         if need > free / 2**20:
+            of_copies = f" ({copies:.0f} MB of them the env's copies)" if copies else ""
             raise MemoryError(
                 f"learn({total_timesteps}) would need about {need:.0f} MB more memory at its "
-                f"peak, and {free / 2**20:.0f} MB are available: collect fewer interactions, "
-                "lower n_words or max_keypoints, or free memory"
+                f"peak{of_copies}, and {free / 2**20:.0f} MB are available: collect fewer "
+                "interactions, lower n_words, max_keypoints or n_envs, or free memory"
             )
+
+    def _env_copies_mb(self) -> float:
+        """MB that the ``n_envs - 1`` copies of the env that the exploring databases step take,
+        from one copy made and dropped here: an env that cannot be copied says so before any
+        work is done."""
+        if self.n_envs == 1 or steps_own_copies(self.env):
+            return 0.0
+        process = psutil.Process()
+        before = process.memory_info().rss
+        copy = copy_env(self.env)
+        grown = process.memory_info().rss - before
+        copy.close()
+        return (self.n_envs - 1) * max(grown, 0) / 2**20
 
     @property
     def rewards_seen(self) -> int:
@@ -336,7 +362,7 @@ class VisualAgent(SB3Model):
             size,
             self._exploration_policy if exploring else None,
             seed=self._next_seed,
-            max_blocked=MAX_BLOCKED if exploring else None,
+            max_blocked=(self.max_blocked or None) if exploring else None,
             n_envs=n_envs,
             on_step=progress.update,
             chunk_percepts=PERCEPTS_PER_CHUNK,
@@ -432,7 +458,12 @@ class VisualAgent(SB3Model):
         self.logger.dump(step=record.stage)
 
     def _exploration_policy(self, observations: np.ndarray, rng: np.random.Generator):
-        return self._explore(self._presence(observations), rng)
+        return self._explore(self._presence(observations), rng) + self._first_action
+
+    @property
+    def _first_action(self) -> int:
+        """The env's id of the learner's action 0: the ``start`` of a ``Discrete`` space."""
+        return int(getattr(self.action_space, "start", 0))
 
     # -- acting -----------------------------------------------------------------------------
     def _presence(self, images: np.ndarray) -> torch.Tensor:
@@ -472,6 +503,7 @@ class VisualAgent(SB3Model):
         if isinstance(self.action_space, gym.spaces.Box):
             actions = actions.astype(self.action_space.dtype)
             return (actions[0] if single else actions), None
+        actions = actions + self._first_action
         return (int(actions[0]) if single else actions), None
 
     def _check_dtype(self, images: np.ndarray) -> None:
@@ -501,6 +533,7 @@ class VisualAgent(SB3Model):
                 "contrast_threshold": self.contrast_threshold,
                 "gamma": self.gamma,
                 "seed": self.seed,
+                "max_blocked": self.max_blocked,
                 **self._extra_params(),
             },
             "observation_shape": list(self.observation_space.shape),

@@ -24,6 +24,8 @@ from vistask.envs.scene import geom_to_body, subtree_geoms
 SHAPE_TOLERANCE = 0.025
 SHAPE_TOLERANCE_MIN = 0.002  # metres
 POINTS = 20_000  # surface points an object's shape is sampled with
+MAX_EXTENT = 0.5  # metres: larger objects do not fit on the table beside others
+ORIGIN_MARGIN = 0.01  # metres the body's origin may lie outside its geoms' box
 
 
 def compile_alone(obj) -> tuple[mujoco.MjModel, mujoco.MjData, int]:
@@ -44,7 +46,47 @@ def surface_points(obj, n: int = POINTS, seed: int = 0) -> Tensor:
     """(n, 3) float64 points on the surface of the robosuite object ``obj``'s geoms (its
     visual geoms, else its collision geoms; every body below its root), in its root body's
     frame, spread by area."""
-    model, data, root = compile_alone(obj)
+    return _surface_points(obj, *compile_alone(obj), n, seed)
+
+
+def table_object_points(obj, label: str) -> Tensor:
+    """``surface_points`` of an object that can stand on the table.
+
+    Raises:
+        ValueError: naming ``label`` and why not: MuJoCo cannot compile it, none of its geoms
+            collides (it would fall through the table), it is larger than ``MAX_EXTENT``
+            (lengths in millimetres, say), or its body's origin, by which it is placed, lies
+            outside its geoms.
+    """
+    try:
+        model, data, root = compile_alone(obj)
+    except Exception as error:  # MuJoCo's compile errors name robosuite's copy, not the file
+        raise ValueError(f"{label}: MuJoCo cannot compile it ({error})") from None
+    own = subtree_geoms(model, root)
+    if not ((model.geom_contype[own] | model.geom_conaffinity[own]) != 0).any():
+        raise ValueError(
+            f"{label}: none of its geoms collides (contype and conaffinity 0): it would fall "
+            "through the table"
+        )
+    points = _surface_points(obj, model, data, root)
+    low, high = points.min(0).values, points.max(0).values
+    if float((high - low).max()) > MAX_EXTENT:
+        raise ValueError(
+            f"{label} is {float((high - low).max()):.2f} m across, more than the table takes "
+            f"({MAX_EXTENT} m): MJCF lengths are metres (a mesh drawn in millimetres needs "
+            'scale="0.001 0.001 0.001")'
+        )
+    if bool((low[:2] > ORIGIN_MARGIN).any() or (high[:2] < -ORIGIN_MARGIN).any()):
+        middle = ((low + high) / 2).tolist()
+        raise ValueError(
+            f"{label}: its body's origin lies outside its geoms (their middle is at "
+            f"{[round(v, 3) for v in middle]} m from it), and robosuite places an object by "
+            "that origin: move the geoms (their pos) so that it lies within them"
+        )
+    return points
+
+
+def _surface_points(obj, model, data, root: int, n: int = POINTS, seed: int = 0) -> Tensor:
     own = subtree_geoms(model, root)
     # robosuite's visual geoms (group 1) show the shape; collision geoms (group 0) are often
     # coarse hulls (the bottle's is six-sided).

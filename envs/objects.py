@@ -21,7 +21,9 @@ Poses are (7,) ``[tx, ty, tz, qx, qy, qz, qw]`` (roma XYZW), object frame -> wor
 
 from __future__ import annotations
 
+import hashlib
 import inspect
+import json
 import math
 import re
 from collections.abc import Callable, Sequence
@@ -106,12 +108,13 @@ def shape_symmetry(label: str, make: Callable[[str], object]) -> Symmetry:
     textures are not seen.
 
     Raises:
-        ValueError: the object cannot stand on the table (``_buildable``), named by ``label``.
+        ValueError: the object cannot stand on the table (``_buildable``,
+            ``table_object_points``), named by ``label``.
     """
     if label not in _SHAPES:
-        from vistask.envs.object_shape import shape_tolerance, surface_points
+        from vistask.envs.object_shape import shape_tolerance, table_object_points
 
-        points = surface_points(_buildable(label, make))
+        points = table_object_points(_buildable(label, make), label)
         _SHAPES[label] = estimate_symmetry(points, shape_tolerance(points))
     return _SHAPES[label]
 
@@ -172,9 +175,26 @@ def object_source(name: str | Path) -> str:
     """What builds the object ``name`` names: an MJCF file's resolved path, ``preset <name>``,
     or a robosuite class name. Names with one source name one object."""
     text = str(name)
-    if text.endswith(".xml"):
+    if text.lower().endswith(".xml"):
         return str(Path(text).resolve())
     return f"preset {text}" if text in _PRESETS else _class_name(text)
+
+
+def check_same_object(folder: Path, name: str | Path) -> None:
+    """Record in ``folder/object.json`` what builds the object ``name`` (``object_source``, and
+    an MJCF file's SHA-256), or, where a stopped run left one, refuse another object: an
+    edited file or another file of the same name."""
+    source = {"source": object_source(name)}
+    if source["source"].lower().endswith(".xml"):
+        source["sha256"] = hashlib.sha256(Path(source["source"]).read_bytes()).hexdigest()
+    path = Path(folder) / "object.json"
+    if path.exists() and json.loads(path.read_text()) != source:
+        raise ValueError(
+            f"{folder} holds results of another object than {name} (another file, or the file "
+            "was edited since): pick another output folder, or remove that one"
+        )
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(source, indent=1))
 
 
 def _class_name(name: str) -> str:
@@ -195,11 +215,7 @@ def _mjcf_spec(path: Path) -> ObjectSpec:
         root = ElementTree.parse(path).getroot()
     except ElementTree.ParseError as error:
         raise ValueError(f"{path} is not valid XML ({error})") from None
-    if root.tag != "mujoco" or root.find(".//worldbody//body[@name='object']") is None:
-        raise ValueError(
-            f"{path} must be an MJCF <mujoco> model whose worldbody holds a <body "
-            'name="object"> (robosuite\'s MujocoXMLObject layout)'
-        )
+    check_mjcf(path, root)
     fname = str(path.resolve())
     name = re.sub(r"\W", "_", path.stem)
 
@@ -209,6 +225,74 @@ def _mjcf_spec(path: Path) -> ObjectSpec:
         )
 
     return ObjectSpec(name, make, shape_symmetry(fname, make))
+
+
+def check_mjcf(path: Path, root: ElementTree.Element) -> None:
+    """Raise ValueError naming ``path`` and the reason where robosuite's ``MujocoXMLObject``
+    would misread the MJCF model ``root``: another layout than ``<worldbody><body><body
+    name="object">``, a geom without ``group`` (robosuite keeps group 0, collision, and 1,
+    visual), or compiler settings and includes that it does not follow (angles in degrees,
+    ``meshdir``, ``texturedir``, ``<include>``)."""
+    if root.tag != "mujoco" or root.find("./worldbody/body/body[@name='object']") is None:
+        raise ValueError(
+            f"{path} must be an MJCF <mujoco> model laid out as <worldbody><body><body "
+            'name="object"> holding the geoms (robosuite\'s MujocoXMLObject layout)'
+        )
+    groups = _geom_groups(root)
+    for name, group in groups:
+        if group not in ("0", "1"):
+            raise ValueError(
+                f'{path}: geom {name!r} has group {group!r}: robosuite keeps group "0" '
+                '(collision) and "1" (visual) geoms; give each geom one of them'
+            )
+    if "0" not in {group for _, group in groups}:
+        raise ValueError(f'{path}: no geom of group "0", robosuite\'s collision geoms')
+    body = root.find("./worldbody/body/body[@name='object']")
+    if body.find(".//freejoint") is not None or any(
+        joint.get("type") == "free" for joint in body.iter("joint")
+    ):
+        raise ValueError(f"{path}: robosuite gives the object its free joint: remove the file's")
+    for compiler in root.iter("compiler"):
+        if compiler.get("angle", "radian") != "radian":
+            raise ValueError(
+                f"{path}: <compiler angle={compiler.get('angle')!r}>: robosuite merges objects "
+                "into a model whose angles are radians; give euler and axisangle in radians"
+            )
+        for folder in ("meshdir", "texturedir", "assetdir"):
+            if compiler.get(folder) is not None:
+                raise ValueError(
+                    f"{path}: <compiler {folder}=...> is not followed by robosuite: give each "
+                    "file's path relative to the XML file's folder"
+                )
+    if root.find(".//include") is not None:
+        raise ValueError(f"{path}: robosuite does not follow <include>: copy the file in")
+
+
+def _geom_groups(root: ElementTree.Element) -> list[tuple[str, str | None]]:
+    """(name, group) of each geom of an MJCF model, its group given or taken from its default
+    class (the geom's ``class``, else the nearest body's ``childclass``, else ``main``)."""
+    defaults: dict[str, str | None] = {}
+
+    def read(default: ElementTree.Element, inherited: str | None) -> None:
+        geom = default.find("geom")
+        group = inherited if geom is None else geom.get("group", inherited)
+        defaults[default.get("class", "main")] = group
+        for child in default.findall("default"):
+            read(child, group)
+
+    for default in root.findall("default"):
+        read(default, None)
+    found = []
+
+    def walk(element: ElementTree.Element, childclass: str) -> None:
+        for child in element:
+            if child.tag == "geom":
+                group = child.get("group", defaults.get(child.get("class", childclass)))
+                found.append((child.get("name") or child.get("type") or "sphere", group))
+            walk(child, child.get("childclass", childclass))
+
+    walk(root.find("worldbody"), "main")
+    return found
 
 
 def _buildable(label: str, make: Callable[[str], object]) -> object:
@@ -235,13 +319,15 @@ def object_spec(name: str | Path | ObjectSpec) -> ObjectSpec:
     module docstring).
 
     Raises:
-        ValueError: nothing of that name, a missing file, or an object that cannot stand on
-            the table (a base class, a visual-only twin, a fixture without a free joint).
+        ValueError: nothing of that name, a missing file, an MJCF file robosuite cannot read
+            (``check_mjcf``), or an object that cannot stand on the table (a base class, no
+            colliding geom, a fixture without a free joint, too large, placed by an origin
+            outside it).
     """
     if isinstance(name, ObjectSpec):
         return name
     text = str(name)
-    if text.endswith(".xml"):
+    if text.lower().endswith(".xml"):
         return _mjcf_spec(Path(text))
     if text in _PRESETS:
         if not isinstance(_PRESETS[text], ObjectSpec):
@@ -331,7 +417,7 @@ def place_apart(
     ``gap`` apart from each other and from the ``placed`` (position, radius) discs.
 
     Raises:
-        RuntimeError: no room found in 500 draws for one of them.
+        NoRoomError: no room found in 500 draws for one of them.
     """
     return _place(
         rng, radii, gap, placed, [lambda span=span: rng.uniform(-span, span, 2) for span in spans]
@@ -350,7 +436,7 @@ def place_occluders(
     12 cm farther) and at most half a target-and-disc width sideways, ``gap`` apart.
 
     Raises:
-        RuntimeError: no room found in 500 draws for one of them.
+        NoRoomError: no room found in 500 draws for one of them.
     """
     centre, r0 = target
     ahead = np.asarray(towards, dtype=float) - centre
@@ -364,6 +450,10 @@ def place_occluders(
     return _place(rng, radii, gap, [target], [lambda r=r: draw(r) for r in radii])
 
 
+class NoRoomError(ValueError):
+    """The objects of a scene find no room apart on the table."""
+
+
 def _place(rng, radii, gap, placed, draws) -> list[np.ndarray]:
     taken = list(placed)
     out = []
@@ -373,7 +463,10 @@ def _place(rng, radii, gap, placed, draws) -> list[np.ndarray]:
             if all(np.linalg.norm(xy - c) > radius + r + gap for c, r in taken):
                 break
         else:
-            raise RuntimeError("could not place the objects apart; widen their range")
+            raise NoRoomError(
+                f"no room for an object {2 * radius:.2f} m across, {gap} m from the "
+                f"{len(taken)} placed: the objects are too large for the table, or too many"
+            )
         taken.append((xy, radius))
         out.append(xy)
     return out
@@ -385,6 +478,22 @@ def footprint_radius(bounds, rot: Tensor) -> float:
 
 
 MAX_DISTRACTORS = 4  # other objects on the grasp trials' table at most
+
+
+def distinct_object_specs(argument: str, kinds: Sequence[str | Path]) -> dict[str, ObjectSpec]:
+    """The specs of ``kinds`` by name, a kind named twice once; ValueError naming
+    ``argument`` where two sources (files, classes, presets) give objects of one name."""
+    specs: dict[str, ObjectSpec] = {}
+    sources: dict[str, str] = {}
+    for kind in dict.fromkeys(kinds):
+        spec, source = named_object_spec(argument, kind), object_source(kind)
+        if sources.setdefault(spec.name, source) != source:
+            raise ValueError(
+                f"{argument}: {kind!r} and {sources[spec.name]!r} are other objects of one "
+                f"name, {spec.name!r}: rename one"
+            )
+        specs.setdefault(spec.name, spec)
+    return specs
 
 
 def named_object_spec(argument: str, name: str):

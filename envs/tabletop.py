@@ -43,9 +43,9 @@ from torch import Tensor
 from vistask.envs.objects import (
     DEFAULT_DISTRACTORS,
     ObjectSpec,
+    distinct_object_specs,
     drop_pose,
     footprint_radius,
-    object_source,
     object_spec,
     place_apart,
     place_occluders,
@@ -131,16 +131,7 @@ class TabletopWorld:
     def __init__(
         self, kinds: Sequence[str] = DEFAULT_DISTRACTORS, extra_cameras: Sequence[CameraSpec] = ()
     ) -> None:
-        self.specs: dict[str, ObjectSpec] = {}
-        sources: dict[str, str] = {}
-        for kind in dict.fromkeys(kinds):
-            spec, source = object_spec(kind), object_source(kind)
-            if sources.setdefault(spec.name, source) != source:
-                raise ValueError(
-                    f"{kind!r} and {sources[spec.name]!r} are other objects of one name, "
-                    f"{spec.name!r}: rename one"
-                )
-            self.specs.setdefault(spec.name, spec)
+        self.specs: dict[str, ObjectSpec] = distinct_object_specs("kinds", kinds)
         self.kinds = list(self.specs)
         arena = table_arena()
         add_cameras(arena, (*CAMERAS.values(), *extra_cameras))

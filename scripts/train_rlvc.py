@@ -18,6 +18,7 @@ from pathlib import Path
 import gymnasium as gym
 
 import vistask.envs  # noqa: F401  (registers the environments)
+from vistask.agents import RLJCAgent, RLVCAgent
 from vistask.cli import (
     check_resume_alone,
     interrupt_on_sigterm,
@@ -84,16 +85,12 @@ def main() -> None:
     interrupt_on_sigterm()
     env = gym.make(args.env, **args.env_kwargs)
     env.close()
-    if isinstance(env.action_space, gym.spaces.Box):
-        if args.hyperparams:
-            parser.error("--hyperparams applies to RLVC (discrete actions), not RLJC")
-        train_rljc(**run)
-    else:
-        try:  # an unknown key or a wrong compaction fails here, not after minutes
-            agent_kwargs(hyperparams_for(args.env, overrides))
-        except ValueError as error:
-            parser.error(f"argument --hyperparams: {error}")
-        train_rlvc(**run, hyperparams=overrides)
+    continuous = isinstance(env.action_space, gym.spaces.Box)
+    try:  # an unknown key or a wrong compaction fails here, not after minutes
+        agent_kwargs(hyperparams_for(args.env, overrides, RLJCAgent if continuous else RLVCAgent))
+    except ValueError as error:
+        parser.error(f"argument --hyperparams: {error}")
+    (train_rljc if continuous else train_rlvc)(**run, hyperparams=overrides)
 
 
 if __name__ == "__main__":

@@ -12,10 +12,11 @@ from gymnasium.utils.env_checker import check_env
 from small_maze import SMALL, small_maze
 from stable_baselines3.common.callbacks import CheckpointCallback, EvalCallback
 
-from vistask.agents import Compaction, RLVCAgent, TabularQAgent
+from vistask.agents import Compaction, RLJCAgent, RLVCAgent, TabularQAgent
 from vistask.envs import MazeOracle, VisualMazeEnv, evaluate_policy, start_positions
 from vistask.experiments.hyperparams import agent_kwargs, hyperparams_for, parse_overrides
 from vistask.experiments.tasks import MazeTask
+from vistask.experiments.train_rljc import train_rljc
 from vistask.experiments.train_rlvc import (
     agent_policy,
     seen_percepts_policy,
@@ -341,6 +342,18 @@ def test_train_rlvc_passes_its_hyperparams_to_the_agent_and_keeps_them_for_resum
         train_rlvc(**run, hyperparams={**options, "vocabulary_groups": 8})
     with pytest.raises(ValueError, match="unknown hyperparameter 'seed'"):
         train_rlvc(**run, hyperparams={"seed": 1})
+
+
+def test_train_rljc_passes_its_hyperparams_to_the_agent_and_keeps_them_for_resuming(tmp_path):
+    run = dict(env_id="vistask/VisualMazeContinuous-v0", env_kwargs=SMALL, interactions=1500)
+    run |= dict(out=tmp_path, progress=False, pictures=False)
+    train_rljc(**run, hyperparams={"n_words": 64, "max_blocked": 0})
+    agent = RLJCAgent.load(tmp_path / "rljc_agent.pt")
+    assert agent.extractor.n_features == 64 and agent.max_blocked == 0
+    with pytest.raises(ValueError, match=r"other settings \(hyperparams\)"):
+        train_rljc(**run, hyperparams={"n_words": 32})
+    with pytest.raises(ValueError, match="unknown hyperparameter 'compounds': RLJCAgent takes"):
+        train_rljc(**run, hyperparams={"compounds": True})
 
 
 def test_hyperparams_take_the_env_entry_and_override_a_mapping_key_by_key():

@@ -232,7 +232,19 @@ def env_identity(env) -> tuple[str, dict] | None:
     if spec is None:
         return None
     kwargs = {**spec.kwargs, "max_episode_steps": spec.max_episode_steps}
-    return spec.id, json.loads(json.dumps(kwargs, default=repr, sort_keys=True))
+    return spec.id, json.loads(json.dumps(kwargs, default=_plain, sort_keys=True))
+
+
+def _plain(value) -> str:
+    """A ``gym.make`` argument that JSON does not hold, named the same in every process: a
+    function or class by its import path, an object by its repr unless that holds its address
+    (then by its type)."""
+    if callable(value) and hasattr(value, "__qualname__"):
+        return f"{getattr(value, '__module__', '')}.{value.__qualname__}"
+    text = repr(value)
+    if " at 0x" in text:
+        return f"<{type(value).__module__}.{type(value).__qualname__}>"
+    return text
 
 
 def check_same_env(learned: tuple[str, dict] | None, env, learning: bool) -> None:

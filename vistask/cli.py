@@ -128,12 +128,14 @@ def ray_address(text: str) -> str:
 
 def run_main(main: Callable[[], object]) -> None:
     """Run a script's ``main``; an input refused on the way (``ValueError``, ``TypeError``,
-    ``FileNotFoundError``, a gymnasium error) or a run that would not fit in memory
+    ``FileNotFoundError``, a gymnasium error, a module named in an env id that does not
+    import: ``ModuleNotFoundError``) or a run that would not fit in memory
     (``MemoryError``) ends it with one line, as argparse's errors do (exit status 2).
     ``VISTASK_TRACEBACK=1`` shows the traceback instead."""
+    refused = (ValueError, TypeError, FileNotFoundError, ModuleNotFoundError, MemoryError)
     try:
         main()
-    except (ValueError, TypeError, FileNotFoundError, MemoryError, gym.error.Error) as error:
+    except (*refused, gym.error.Error) as error:
         if os.environ.get("VISTASK_TRACEBACK"):
             raise
         print(f"{Path(sys.argv[0]).name}: error: {error}", file=sys.stderr)

@@ -120,6 +120,12 @@ class JointClasses(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
                 f"the joint classes hold boxes of {classifier.box_low.shape[1]}-D actions; the "
                 f"env's actions are {space}"
             )
+        low, high = np.asarray(classifier.box_low).min(0), np.asarray(classifier.box_high).max(0)
+        if not (np.allclose(space.low, low) and np.allclose(space.high, high)):
+            raise ValueError(
+                f"the joint classes' boxes cover actions from {low} to {high}; the env's "
+                f"actions are {space}"
+            )
         gym.utils.RecordConstructorArgs.__init__(self, classifier=classifier)
         gym.ObservationWrapper.__init__(self, env)
         self.classifier = classifier

@@ -197,10 +197,9 @@ class GraspExperiment:
     ) -> None:
         if not objects or isinstance(objects, str):
             raise ValueError(f"objects must list at least one object kind, got {objects!r}")
-        from vistask.envs.objects import MAX_DISTRACTORS, named_object_spec
+        from vistask.envs.objects import MAX_DISTRACTORS, distinct_object_specs
 
-        for kind in objects:
-            named_object_spec("objects", kind)
+        distinct_object_specs("objects", objects)
         if n_distractors > MAX_DISTRACTORS:
             raise ValueError(f"n_distractors must be in 0..{MAX_DISTRACTORS}, got {n_distractors}")
         if hypothesis not in HYPOTHESES:
@@ -406,12 +405,13 @@ class GraspExperiment:
         from tqdm import tqdm
 
         from vistask.envs.hand_fit import warn_misfits
-        from vistask.envs.objects import object_name, object_spec
+        from vistask.envs.objects import check_same_object, object_name, object_spec
 
         out.mkdir(parents=True, exist_ok=True)
         check_same_settings(out / "config.json", self.settings(), free=("objects",))
         names = {kind: object_name(kind) for kind in self.objects}
-        for kind in self.objects:
+        for kind, name in names.items():
+            check_same_object(out / name, kind)
             warn_misfits(object_spec(kind), self.tip_probability)
         models = {}
         for kind, name in names.items():

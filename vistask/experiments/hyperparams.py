@@ -24,9 +24,10 @@ TABLE = Path(__file__).with_name("hyperparams") / "rlvc.yml"
 NOT_HYPERPARAMS = ("self", "env", "tensorboard_log", "seed")
 
 
-def known() -> list[str]:
-    """The hyperparameters: ``RLVCAgent``'s arguments but the env, its log folder and seed."""
-    names = inspect.signature(RLVCAgent.__init__).parameters
+def known(agent_class: type = RLVCAgent) -> list[str]:
+    """The hyperparameters: the agent class's arguments but the env, its log folder and
+    seed."""
+    names = inspect.signature(agent_class.__init__).parameters
     return [name for name in names if name not in NOT_HYPERPARAMS]
 
 
@@ -35,23 +36,26 @@ def table() -> dict[str, dict]:
     return yaml.safe_load(TABLE.read_text()) or {}
 
 
-def hyperparams_for(env_id: str, overrides: dict | None = None) -> dict:
+def hyperparams_for(
+    env_id: str, overrides: dict | None = None, agent_class: type = RLVCAgent
+) -> dict:
     """The table's entry for ``env_id`` (empty if it has none), with ``overrides`` on top; a
-    mapping over a mapping (``compaction``) overrides only its own keys.
+    mapping over a mapping (``compaction``) overrides only its own keys. ``agent_class``:
+    ``RLVCAgent``, or ``RLJCAgent`` for an env of continuous actions.
 
     Raises:
-        ValueError: a key that is not one of ``known()``, or a ``compaction`` mapping with a
-            key that ``Compaction`` does not take.
+        ValueError: a key that is not one of ``known(agent_class)``, or a ``compaction``
+            mapping with a key that ``Compaction`` does not take.
     """
     params = dict(table().get(env_id, {}))
     for key, value in (overrides or {}).items():
         both = isinstance(value, dict) and isinstance(params.get(key), dict)
         params[key] = {**params[key], **value} if both else value
-    unknown = sorted(set(params) - set(known()))
+    unknown = sorted(set(params) - set(known(agent_class)))
     if unknown:
         raise ValueError(
-            f"unknown hyperparameter {', '.join(map(repr, unknown))}: RLVCAgent takes "
-            f"{', '.join(known())}"
+            f"unknown hyperparameter {', '.join(map(repr, unknown))}: "
+            f"{agent_class.__name__} takes {', '.join(known(agent_class))}"
         )
     compaction = params.get("compaction")
     fields = [field.name for field in dataclasses.fields(Compaction)]

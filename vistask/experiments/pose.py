@@ -24,7 +24,7 @@ from pathlib import Path
 
 import torch
 
-from vistask.envs.objects import DEFAULT_DISTRACTORS, object_name, object_spec
+from vistask.envs.objects import DEFAULT_DISTRACTORS, NoRoomError, object_name, object_spec
 from vistask.envs.scene import CAMERAS, TABLE_TOP_Z
 from vistask.experiments.pose_scenes import (
     CONDITIONS,
@@ -156,7 +156,7 @@ class PoseBenchmark:
                         if condition.occluders
                         else None,
                     )
-                except RuntimeError:  # no room for every distractor that close: draw again
+                except NoRoomError:  # no room for every distractor that close: draw again
                     continue
                 visible = visible_fraction(scene, world)
                 if max(visible) < MIN_VISIBLE:

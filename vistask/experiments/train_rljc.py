@@ -22,6 +22,7 @@ import numpy as np
 import vistask.envs  # noqa: F401  (registers the environments)
 from vistask.agents import RLJCAgent, RLVCAgent
 from vistask.envs.maze_plots import percept_grid, plot_directions
+from vistask.experiments.hyperparams import hyperparams_for
 from vistask.experiments.tasks import MazeTask
 from vistask.experiments.train_rlvc import (
     EvaluateEvery,
@@ -97,6 +98,7 @@ def train_rljc(
     out: str | Path | None = None,
     progress: bool = True,
     pictures: bool = True,
+    hyperparams: dict | None = None,
 ) -> dict:
     """Learn joint classes with ``RLJCAgent``'s defaults, score the greedy policy, save the
     agent, its TensorBoard run, pictures and ``summary.json`` in ``out``. On the continuous
@@ -111,17 +113,22 @@ def train_rljc(
             left goes on from its checkpoint, with the same settings.
         progress: show progress bars.
         pictures: draw the directions and the joint classes (the maze).
+        hyperparams: ``RLJCAgent`` arguments, e.g. ``{"n_words": 4096}`` (``hyperparams_for``).
 
     Returns:
         The summary written to ``summary.json``.
     """
+    hyperparams = hyperparams_for(env_id, hyperparams, RLJCAgent)
     start = time.perf_counter()
     out = run_dir("train_rljc", out)
     settings = {"env_id": env_id, "env_kwargs": env_kwargs or {}, "interactions": interactions}
-    check_same_settings(out / "settings.json", {**settings, "seed": seed})
+    settings["seed"] = seed
+    if hyperparams:
+        settings["hyperparams"] = hyperparams
+    check_same_settings(out / "settings.json", settings)
     env = gym.make(env_id, **(env_kwargs or {}))
     scorer = Scorer(env_id, env_kwargs)
-    agent = RLJCAgent(env, seed=seed, tensorboard_log=out / "tensorboard")
+    agent = RLJCAgent(env, **hyperparams, seed=seed, tensorboard_log=out / "tensorboard")
     evaluations = EvaluateEvery(scorer)
     agent, before = learn_resumable(agent, interactions, out, evaluations, progress)
     learned = time.perf_counter()

@@ -67,8 +67,39 @@ def check_image_space(space, user: str) -> None:
     ):
         raise TypeError(
             f"{user} needs (H, W, 3) or (H, W) uint8 image observations, got observation "
-            f"space {space}; render an env to pixels with gymnasium.wrappers.AddRenderObservation"
+            f"space {space}; {_image_hint(space)}"
         )
+
+
+def _image_hint(space) -> str:
+    """How to turn observations of ``space`` into (H, W, 3) or (H, W) uint8 images."""
+    from gymnasium import spaces
+
+    shape = tuple(getattr(space, "shape", None) or ())
+    if not isinstance(space, spaces.Box) or len(shape) not in (2, 3):
+        return "render an env to pixels with gymnasium.wrappers.AddRenderObservation"
+
+    def transform(what: str, f: str, new_shape: tuple) -> str:
+        return (
+            f"{what}: gymnasium.wrappers.TransformObservation(env, {f}, "
+            f"gymnasium.spaces.Box(0, 255, {new_shape}, np.uint8))"
+        )
+
+    if space.dtype != np.uint8:
+        return transform(
+            "with views in [0, 1], make them uint8",
+            "lambda o: (o * 255).round().astype(np.uint8)",
+            shape,
+        )
+    if len(shape) == 3 and shape[2] == 1:
+        return f"drop the channel axis: gymnasium.wrappers.ReshapeObservation(env, {shape[:2]})"
+    if len(shape) == 3 and shape[0] in (1, 3) and shape[2] not in (1, 3):
+        return transform(
+            "move the channels last", "lambda o: o.transpose(1, 2, 0)", (*shape[1:], shape[0])
+        )
+    if len(shape) == 3 and shape[2] == 4:
+        return transform("drop the alpha channel", "lambda o: o[..., :3]", (*shape[:2], 3))
+    return "give the images 1 (grey) or 3 (RGB) channels"
 
 
 def image_digest(image: np.ndarray) -> tuple:

@@ -7,6 +7,7 @@ from vistask.rlvc.bdd import ClassBDD
 from vistask.rlvc.classifier import JointClassifier, VisualClassifier
 from vistask.rlvc.committee import Committee
 from vistask.rlvc.compaction import acceptable, interchangeable, merge_groups
+from vistask.rlvc.copies import vector_copies
 from vistask.rlvc.database import (
     InteractionDatabase,
     Transitions,
@@ -14,7 +15,6 @@ from vistask.rlvc.database import (
     collect,
     collect_chunks,
     random_policy,
-    vector_copies,
 )
 from vistask.rlvc.joint_tree import JointTree
 from vistask.rlvc.learner import RLVC, StageRecord

@@ -11,7 +11,6 @@ each distinct pair once.
 
 from __future__ import annotations
 
-import copy
 import hashlib
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field, replace
@@ -31,6 +30,7 @@ from vistask.features import (
 )
 from vistask.features.compounds import concatenated_ranges
 from vistask.memory import base_pages
+from vistask.rlvc.copies import vector_copies
 from vistask.rlvc.presence import PackedPresence
 
 # An exploration policy maps a batch of observations (B, H, W, 3) and a generator to (B,)
@@ -106,37 +106,6 @@ def random_policy(space: gym.spaces.Discrete | gym.spaces.Box) -> ExplorationPol
 
 
 @checked
-def vector_copies(env: gym.Env, n_envs: int) -> gym.vector.VectorEnv:
-    """``n_envs`` copies of ``env`` as one vector env without autoreset.
-
-    An env whose unwrapped class steps copies of itself as one batch (defines ``vector_copies``,
-    as the visual maze does) gets those, with ``gym.make``'s time limit, unless other wrappers
-    surround it or it is a subclass (their changes would be lost); any other env is copied
-    into a ``SyncVectorEnv`` (``_copy``).
-    """
-    inner, spec = env.unwrapped, env.spec
-    only_make_wrappers = env is inner or (spec is not None and not spec.additional_wrappers)
-    if only_make_wrappers and "vector_copies" in vars(type(inner)):
-        limit = None if env is inner else spec.max_episode_steps  # a wrapper has a spec here
-        return inner.vector_copies(n_envs, limit)
-    copies = [env] + [_copy(env) for _ in range(n_envs - 1)]
-    return gym.vector.SyncVectorEnv(
-        [lambda e=e: e for e in copies], autoreset_mode=gym.vector.AutoresetMode.DISABLED
-    )
-
-
-def _copy(env: gym.Env) -> gym.Env:
-    """A fresh env like ``env``: made again from its spec (wrappers included) where it has
-    one, since renderers (pygame, MuJoCo) do not deep-copy; else a deep copy."""
-    if env.spec is not None:
-        try:
-            return gym.make(env.spec)
-        except Exception:  # a wrapper that does not record its arguments, say
-            pass
-    return copy.deepcopy(env)
-
-
-@checked
 def collect(
     env: gym.Env,
     n: int,
@@ -198,6 +167,8 @@ def collect_chunks(
         raise ValueError(f"chunk_percepts must be >= n_envs ({n_envs}), got {chunk_percepts}")
     rng = np.random.default_rng(seed)
     policy = policy or random_policy(env.action_space)
+    # Interactions keep action ids 0..n-1 of a Discrete(n, start) space: the learner's rows.
+    first_action = 0 if continuous else int(env.action_space.start)
     envs = vector_copies(env, n_envs)
     chunk = _Chunk(continuous)
     # Per env copy: the percept index of its view and its blocked moves in a row.
@@ -210,12 +181,19 @@ def collect_chunks(
         with base_pages():  # released at each yield: the caller's setting between chunks
             actions = np.asarray(policy(views, rng))
             obs, rewards, terminated, truncated, infos = envs.step(actions)
+            if not np.isfinite(rewards).all():
+                raise ValueError(
+                    f"{env.unwrapped} returned the reward {rewards[~np.isfinite(rewards)][0]}: "
+                    "rewards must be finite numbers"
+                )
             # A blocked move shows the same view again: store (and later extract) it once.
             same = (obs == views).reshape(n_envs, -1).all(axis=1)
             added = min(n_envs, n - collected)  # the last round may need fewer
             for i in range(added):
                 following = current[i] if same[i] else chunk.add(obs[i], infos, i)
-                chunk.link(current[i], actions[i], rewards[i], following, terminated[i])
+                chunk.link(
+                    current[i], actions[i] - first_action, rewards[i], following, terminated[i]
+                )
                 current[i] = following
                 returns[i] += float(rewards[i])
             collected += added
@@ -238,29 +216,46 @@ def collect_chunks(
     yield chunk.transitions()
 
 
+def _position(infos: dict, i: int) -> np.ndarray | None:
+    """Copy ``i``'s ``info["position"]`` where it is a number or an array of numbers, else None
+    (an env's own ``position`` of another kind is not the agent's business)."""
+    try:
+        position = np.asarray(infos["position"][i])
+    except (KeyError, IndexError, TypeError, ValueError):
+        return None
+    return position if position.dtype.kind in "biuf" else None
+
+
 class _Chunk:
     """The percepts and interactions of one chunk of ``collect_chunks``, as they come."""
 
     def __init__(self, continuous: bool) -> None:
         self.continuous = continuous
         self.percepts: list[np.ndarray] = []
-        self.positions: list[np.ndarray] = []
+        self.positions: list[np.ndarray] | None = []  # None: some view had no numeric one
         self.obs, self.actions, self.rewards, self.next_obs, self.terminal = [], [], [], [], []
         self.episode_returns: list[float] = []
 
     def add(self, view: np.ndarray, infos: dict, i: int) -> int:
         """Add copy ``i``'s view (``infos``: the copies' infos); its percept index."""
         self.percepts.append(view)
-        if "position" in infos:
-            self.positions.append(np.asarray(infos["position"][i]))
+        self._keep_position(_position(infos, i))
         return len(self.percepts) - 1
 
     def carry(self, other: _Chunk, k: int) -> int:
         """Add percept ``k`` of ``other`` (a copy's view when ``other`` ended); its index."""
         self.percepts.append(other.percepts[k])
-        if len(other.positions) == len(other.percepts):
-            self.positions.append(other.positions[k])
+        self._keep_position(None if other.positions is None else other.positions[k])
         return len(self.percepts) - 1
+
+    def _keep_position(self, position: np.ndarray | None) -> None:
+        """Keep the position of the view just added while every view has one of one shape."""
+        if self.positions is None:
+            return
+        if position is None or (self.positions and position.shape != self.positions[0].shape):
+            self.positions = None
+        else:
+            self.positions.append(position)
 
     def link(self, obs: int, action, reward, next_obs: int, terminal) -> None:
         """Add the interaction from percept ``obs`` to percept ``next_obs``."""
@@ -282,7 +277,7 @@ class _Chunk:
             np.asarray(self.rewards, dtype=np.float64),
             np.asarray(self.next_obs, dtype=np.int64),
             np.asarray(self.terminal, dtype=bool),
-            np.stack(self.positions) if len(self.positions) == len(self.percepts) else None,
+            None if self.positions is None else np.stack(self.positions),
             np.asarray(self.episode_returns, dtype=np.float64),
         )
 
