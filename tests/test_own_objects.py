@@ -83,3 +83,8 @@ def test_a_run_folder_refuses_an_edited_file_of_the_object_it_learned(tmp_path):
     path.write_text(path.read_text().replace("0.03", "0.04"))
     with pytest.raises(ValueError, match="edited"):
         check_same_object(tmp_path / "run" / "block", path)
+
+
+def test_a_box_turned_inside_its_body_has_the_four_symmetries_of_a_box(tmp_path):
+    turned = '<geom type="box" size="0.05 0.015 0.02" euler="0 0 0.5" group="0" density="300"/>'
+    assert object_spec(mjcf(tmp_path, turned)).symmetry.rotations.shape[0] == 4

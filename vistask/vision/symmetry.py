@@ -117,6 +117,11 @@ def pose_error(
 CONTINUOUS_TEST_ANGLES = tuple(2 * math.pi * k / 13 for k in (1, 3, 5))
 ORDERS = (8, 6, 5, 4, 3, 2)  # the discrete orders tested about each axis, largest first
 MAX_GROUP = 48  # the finite group's size is bounded: symmetries of a cube are 24
+# Compositions of near-symmetries found about slightly tilted axes drift by a few degrees: a
+# rotation this close to a member is that member (no finite group of a shape's symmetries
+# holds two rotations this close).
+SAME_ROTATION = math.radians(5.0)
+SAME_QUATERNION = math.cos(SAME_ROTATION / 2)
 
 
 @checked
@@ -192,8 +197,8 @@ def _closure(generators: list[Tensor]) -> Tensor:
     """(K, 4) the finite group the XYZW quaternions ``generators`` make, identity first."""
     group = [_IDENTITY[0].double()]
 
-    def known(q: Tensor) -> bool:
-        return any(abs(float(q @ g)) > 1 - 1e-6 for g in group)
+    def known(q: Tensor) -> bool:  # within SAME_ROTATION of a member: a drifted composition
+        return any(abs(float(q @ g)) > SAME_QUATERNION for g in group)
 
     frontier = []
     for g in generators:
