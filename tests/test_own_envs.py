@@ -193,3 +193,9 @@ def test_joint_classes_refuse_an_env_with_other_action_bounds():
     wider = corridor(action_space=gym.spaces.Box(-5, 5, (1,), np.float32))
     with pytest.raises(ValueError, match="boxes cover actions"):
         JointClasses(wider, agent.classifier)
+
+
+def test_a_vector_env_is_refused_saying_that_the_agent_makes_its_own_copies():
+    vector = gym.vector.SyncVectorEnv([corridor, corridor])
+    with pytest.raises(TypeError, match="a vector env: pass one env, of which agents run n_envs"):
+        RLVCAgent(vector)
