@@ -420,6 +420,7 @@ class VisualAgent(SB3Model):
             iters=10,
             groups=self.vocabulary_groups,
             seed=self.seed,
+            image_shape=self.observation_space.shape,
         )
         self.learner = self._new_learner()
         self.timing["vocabulary"] += time.perf_counter() - t0

@@ -12,7 +12,7 @@ from vistask.agents import RLJCAgent, RLVCAgent
 from vistask.checks import env_identity
 from vistask.envs.tapestry import make_tapestry
 from vistask.rlvc import check_image_env
-from vistask.wrappers import JointClasses
+from vistask.wrappers import JointClasses, VisualClasses, VisualFeatures
 
 PHOTO = make_tapestry(48, 520, tile=48, seed=3)
 
@@ -199,3 +199,24 @@ def test_a_vector_env_is_refused_saying_that_the_agent_makes_its_own_copies():
     vector = gym.vector.SyncVectorEnv([corridor, corridor])
     with pytest.raises(TypeError, match="a vector env: pass one env, of which agents run n_envs"):
         RLVCAgent(vector)
+
+
+class Wide(Corridor):
+    def __init__(self):
+        super().__init__()
+        self.observation_space = gym.spaces.Box(0, 255, (48, 52, 3), np.uint8)
+
+    def _view(self):
+        return np.ascontiguousarray(PHOTO[:, self.cell * 52 : self.cell * 52 + 52])
+
+
+def test_the_wrappers_refuse_an_env_of_other_images_than_the_classes_were_learned_on(tmp_path):
+    agent = RLVCAgent(corridor(), **SMALL).learn(1000)
+    agent.save(tmp_path / "agent.pt")
+    loaded = RLVCAgent.load(tmp_path / "agent.pt")
+    for learned in (agent, loaded):
+        VisualClasses(corridor(), learned.classifier)
+        with pytest.raises(ValueError, match=re.escape("images of shape (48, 48, 3)")):
+            VisualClasses(gym.wrappers.TimeLimit(Wide(), 20), learned.classifier)
+        with pytest.raises(ValueError, match="VisualFeatures: the vocabulary"):
+            VisualFeatures(gym.wrappers.TimeLimit(Wide(), 20), learned.extractor)

@@ -178,6 +178,8 @@ class VisualFeatureExtractor:
             Control loops see the same percept again and again (a blocked move leaves the
             view unchanged; evaluations replay the same starts), and extraction is the
             dominant cost.
+        image_shape: the shape of the images it was fitted on, which the wrappers check an
+            env's observations against (None: not known).
     """
 
     def __init__(
@@ -187,6 +189,7 @@ class VisualFeatureExtractor:
         max_distance: float | None = None,
         cache_size: int = CACHE_SIZE,
         groups: CoarseGroups | None = None,
+        image_shape: tuple[int, ...] | None = None,
     ) -> None:
         if centroids.ndim != 2 or centroids.shape[1] != keypoints.descriptor_size:
             raise ValueError(
@@ -208,11 +211,22 @@ class VisualFeatureExtractor:
         check_at_least(0, cache_size=cache_size)
         self.max_distance = max_distance
         self.cache_size = cache_size
+        self.image_shape = None if image_shape is None else tuple(int(n) for n in image_shape)
         self._cache: dict[tuple, tuple] = {}  # image digest -> (words, xy, scale)
 
     def __getstate__(self) -> dict:
         # Pickled copies (subprocess vector envs) start with an empty cache.
         return {**self.__dict__, "_cache": {}}
+
+    def check_space(self, space, user: str) -> None:
+        """Raise ValueError, naming ``user``, where the observations of ``space`` are images of
+        another shape than the vocabulary was fitted on."""
+        shape = tuple(getattr(space, "shape", None) or ())
+        if self.image_shape is not None and shape != self.image_shape:
+            raise ValueError(
+                f"{user}: the vocabulary was learned on images of shape {self.image_shape}; "
+                f"this env's observations are {shape}"
+            )
 
     @property
     def n_features(self) -> int:
@@ -244,6 +258,7 @@ class VisualFeatureExtractor:
         groups: int = VOCABULARY_GROUPS,
         probes: int = 3,
         seed: int = 0,
+        image_shape: tuple[int, ...] | None = None,
     ) -> VisualFeatureExtractor:
         """Learn the vocabulary by k-means over descriptors of sample percepts.
 
@@ -262,6 +277,7 @@ class VisualFeatureExtractor:
             probes: groups searched per descriptor (with ``groups``); one probe misses the
                 nearest prototype of descriptors near a group border.
             seed: seed of the subset and of the k-means initialisation.
+            image_shape: see the class (default: the shape of ``images``' first).
         """
         check_at_least(2, n_words=n_words)  # one word is present in every percept
         check_at_least(1, max_descriptors=max_descriptors, iters=iters, probes=probes)
@@ -285,11 +301,14 @@ class VisualFeatureExtractor:
                 f"only {len(x)} descriptors in the sample percepts for {n_words} words: "
                 "use more sample percepts or fewer words"
             )
+        if image_shape is None and images:
+            image_shape = np.shape(images[0])
         if groups <= 0:
-            return cls(keypoints, kmeans(x, n_words, iters, seed), max_distance)
+            centroids = kmeans(x, n_words, iters, seed)
+            return cls(keypoints, centroids, max_distance, image_shape=image_shape)
         centroids, group_of, centres = grouped_kmeans(x, n_words, groups, iters, seed)
         coarse = CoarseGroups(centres, group_of, probes)
-        return cls(keypoints, centroids, max_distance, groups=coarse)
+        return cls(keypoints, centroids, max_distance, groups=coarse, image_shape=image_shape)
 
     def nearest(self, x: torch.Tensor, k: int = 1) -> tuple[torch.Tensor, torch.Tensor]:
         """K nearest prototypes of descriptors x (M, D): (indices (M, k), squared distances)."""
@@ -386,6 +405,7 @@ class VisualFeatureExtractor:
                 "group_of": self.groups.group_of.cpu(),
                 "probes": self.groups.probes,
             },
+            "image_shape": self.image_shape,
         }
 
     @classmethod
@@ -396,6 +416,7 @@ class VisualFeatureExtractor:
             state["centroids"],
             state["max_distance"],
             groups=CoarseGroups(**state["groups"]) if state.get("groups") else None,
+            image_shape=state.get("image_shape"),
         )
 
     def save(self, path: str | Path) -> None:
