@@ -22,7 +22,7 @@ from vistask.envs.scene import geom_to_body, subtree_geoms
 # SHAPE_TOLERANCE_MIN): a lemon's 40 x 43 mm section turned about its long axis moves its
 # outline 1.5 mm at most, the bottle's six-sided body 3.4 mm over its 160 mm.
 SHAPE_TOLERANCE = 0.025
-SHAPE_TOLERANCE_MIN = 0.002  # metres
+SHAPE_TOLERANCE_MIN = 0.0005  # metres: the surface samples lie about 0.2 mm apart on a 1 cm cube
 POINTS = 20_000  # surface points an object's shape is sampled with
 MAX_EXTENT = 0.5  # metres: larger objects do not fit on the table beside others
 ORIGIN_MARGIN = 0.01  # metres the body's origin may lie outside its geoms' box

@@ -88,3 +88,9 @@ def test_a_run_folder_refuses_an_edited_file_of_the_object_it_learned(tmp_path):
 def test_a_box_turned_inside_its_body_has_the_four_symmetries_of_a_box(tmp_path):
     turned = '<geom type="box" size="0.05 0.015 0.02" euler="0 0 0.5" group="0" density="300"/>'
     assert object_spec(mjcf(tmp_path, turned)).symmetry.rotations.shape[0] == 4
+
+
+@pytest.mark.parametrize("half", [0.005, 0.01])
+def test_a_small_cube_has_the_24_rotations_of_a_cube(tmp_path, half):
+    cube = f'<geom type="box" size="{half} {half} {half}" group="0" density="300"/>'
+    assert object_spec(mjcf(tmp_path, cube)).symmetry.rotations.shape[0] == 24
