@@ -230,9 +230,10 @@ def _mjcf_spec(path: Path) -> ObjectSpec:
 def check_mjcf(path: Path, root: ElementTree.Element) -> None:
     """Raise ValueError naming ``path`` and the reason where robosuite's ``MujocoXMLObject``
     would misread the MJCF model ``root``: another layout than ``<worldbody><body><body
-    name="object">``, a geom without ``group`` (robosuite keeps group 0, collision, and 1,
-    visual), or compiler settings and includes that it does not follow (angles in degrees,
-    ``meshdir``, ``texturedir``, ``<include>``)."""
+    name="object">``; a geom of no group or another than 0 (collision) and 1 (visual), the
+    two robosuite keeps, or no geom of group 0; a free joint of the file's own (robosuite
+    adds one); compiler settings and includes that robosuite does not follow (angles in
+    degrees, ``meshdir``, ``texturedir``, ``assetdir``, ``<include>``)."""
     if root.tag != "mujoco" or root.find("./worldbody/body/body[@name='object']") is None:
         raise ValueError(
             f"{path} must be an MJCF <mujoco> model laid out as <worldbody><body><body "
