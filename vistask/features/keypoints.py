@@ -91,9 +91,10 @@ def _image_hint(space) -> str:
             "lambda o: (o * 255).round().astype(np.uint8)",
             shape,
         )
-    if len(shape) == 3 and shape[2] == 1:
-        return f"drop the channel axis: gymnasium.wrappers.ReshapeObservation(env, {shape[:2]})"
-    if len(shape) == 3 and shape[0] in (1, 3) and shape[2] not in (1, 3):
+    if len(shape) == 3 and 1 in (shape[0], shape[2]):
+        grey = shape[:2] if shape[2] == 1 else shape[1:]
+        return f"drop the channel axis: gymnasium.wrappers.ReshapeObservation(env, {grey})"
+    if len(shape) == 3 and shape[0] == 3 and shape[2] != 3:
         return transform(
             "move the channels last", "lambda o: o.transpose(1, 2, 0)", (*shape[1:], shape[0])
         )
