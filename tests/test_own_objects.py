@@ -94,3 +94,8 @@ def test_a_box_turned_inside_its_body_has_the_four_symmetries_of_a_box(tmp_path)
 def test_a_small_cube_has_the_24_rotations_of_a_cube(tmp_path, half):
     cube = f'<geom type="box" size="{half} {half} {half}" group="0" density="300"/>'
     assert object_spec(mjcf(tmp_path, cube)).symmetry.rotations.shape[0] == 24
+
+
+def test_a_thin_square_prism_has_the_8_rotations_of_a_square_prism(tmp_path):
+    prism = '<geom type="box" size="0.006 0.006 0.03" group="0" density="300"/>'
+    assert object_spec(mjcf(tmp_path, prism)).symmetry.rotations.shape[0] == 8

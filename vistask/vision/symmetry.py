@@ -133,8 +133,9 @@ def estimate_symmetry(points: Tensor, tolerance: float) -> Symmetry:
     (95% of them: the points are samples). The axes tried are the frame's and the shape's
     principal axes (about the origin). An axis about which three unrelated angles
     (``CONTINUOUS_TEST_ANGLES``) are symmetries is continuous; about any other, the largest
-    order of ``ORDERS`` is kept. The finite group is closed under composition; with a
-    continuous axis it keeps the half-turns that flip that axis.
+    order of ``ORDERS`` that the others that hold agree with is kept (``_order``). The finite
+    group is closed under composition; with a continuous axis it keeps the half-turns that
+    flip that axis.
 
     Example:
         >>> estimate_symmetry(points_on_a_can, tolerance=0.002).axis
@@ -158,9 +159,12 @@ def estimate_symmetry(points: Tensor, tolerance: float) -> Symmetry:
     tree = cKDTree(p.numpy())
     sample = p[torch.randperm(len(p), generator=torch.Generator().manual_seed(0))[:2000]]
 
-    def holds(rotvec: Tensor) -> bool:
+    def misfit(rotvec: Tensor) -> float:
         distances, _ = tree.query((sample @ roma.rotvec_to_rotmat(rotvec).T).numpy())
-        return bool(np.quantile(distances, 0.95) <= tolerance)
+        return float(np.quantile(distances, 0.95))
+
+    def holds(rotvec: Tensor) -> bool:
+        return misfit(rotvec) <= tolerance
 
     axes = _candidate_axes(p)
     continuous = next(
@@ -172,7 +176,7 @@ def estimate_symmetry(points: Tensor, tolerance: float) -> Symmetry:
             if abs(float(a @ continuous)) < 1e-6 and holds(math.pi * a):
                 generators.append(math.pi * a)  # a flip of the continuous axis
             continue
-        order = next((n for n in ORDERS if holds(2 * math.pi / n * a)), None)
+        order = _order({n: misfit(2 * math.pi / n * a) for n in ORDERS}, tolerance)
         if order is not None:
             generators.append(2 * math.pi / order * a)
     # Compositions of near-symmetries drift: each member of the group must hold itself.
@@ -180,6 +184,21 @@ def estimate_symmetry(points: Tensor, tolerance: float) -> Symmetry:
     rotations = torch.stack([q for q in group if holds(roma.unitquat_to_rotvec(q))])
     axis = None if continuous is None else continuous.float()
     return Symmetry(rotations=rotations.float(), axis=axis)
+
+
+def _order(misfits: dict[int, float], tolerance: float) -> int | None:
+    """The order of an axis from the misfit of each order's turn about it: the largest order
+    that holds and that every order that holds divides; where the orders that hold disagree
+    (a 72-degree turn of a thin square prism passes beside its quarter turn), the largest
+    that holds among the multiples of the best fitting one. None where no order holds."""
+    held = [n for n, misfit in misfits.items() if misfit <= tolerance]
+    if not held:
+        return None
+    agreeing = [n for n in held if all(n % m == 0 for m in held)]
+    if agreeing:
+        return max(agreeing)
+    best = min(held, key=misfits.get)
+    return max(n for n in held if n % best == 0)
 
 
 def _candidate_axes(points: Tensor) -> list[Tensor]:
