@@ -293,13 +293,15 @@ class PoseBenchmark:
         clouds = {}
         for kind in self.objects:
             start = time.perf_counter()
-            model = learned[kind] = (models or {}).get(kind) or self.learn_model(kind)
+            given = (models or {}).get(kind)
+            model = learned[kind] = given or self.learn_model(kind)
             if "open3d_dense" in self.methods:
                 clouds[kind] = model_cloud(kind, self.n_rotations, self.image_size, self.voxel)
             if log:
+                learning = "given" if given else f"learned in {time.perf_counter() - start:.1f} s"
                 log(
                     f"{kind}: model of {len(model.patches)} patches, {model.n_classes} classes, "
-                    f"depth {model.depth()}, learned in {time.perf_counter() - start:.1f} s"
+                    f"depth {model.depth()}, {learning}"
                 )
         jobs = [
             (self, (learned[kind], clouds.get(kind)), kind, cond, i, i < pictures)
