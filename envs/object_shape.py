@@ -49,8 +49,10 @@ def surface_points(obj, n: int = POINTS, seed: int = 0) -> Tensor:
     return _surface_points(obj, *compile_alone(obj), n, seed)
 
 
-def table_object_points(obj, label: str) -> Tensor:
-    """``surface_points`` of an object that can stand on the table.
+def table_object_shape(obj, label: str) -> tuple[Tensor, Tensor]:
+    """``surface_points`` of an object that can stand on the table, and (3 G, 3) float64 the
+    axes of its G geoms' frames in its root body's frame (a box's or cylinder's axes are
+    those of its symmetries, where the shape's principal axes may be any, as a cube's).
 
     Raises:
         ValueError: naming ``label`` and why not: MuJoCo cannot compile it, none of its geoms
@@ -83,7 +85,8 @@ def table_object_points(obj, label: str) -> Tensor:
             f"{[round(v, 3) for v in middle]} m from it), and robosuite places an object by "
             "that origin: move the geoms (their pos) so that it lies within them"
         )
-    return points
+    rotations = [data.xmat[root].reshape(3, 3).T @ data.geom_xmat[g].reshape(3, 3) for g in own]
+    return points, torch.from_numpy(np.concatenate([r.T for r in rotations]))
 
 
 def _surface_points(obj, model, data, root: int, n: int = POINTS, seed: int = 0) -> Tensor:

@@ -109,13 +109,13 @@ def shape_symmetry(label: str, make: Callable[[str], object]) -> Symmetry:
 
     Raises:
         ValueError: the object cannot stand on the table (``_buildable``,
-            ``table_object_points``), named by ``label``.
+            ``table_object_shape``), named by ``label``.
     """
     if label not in _SHAPES:
-        from vistask.envs.object_shape import shape_tolerance, table_object_points
+        from vistask.envs.object_shape import shape_tolerance, table_object_shape
 
-        points = table_object_points(_buildable(label, make), label)
-        _SHAPES[label] = estimate_symmetry(points, shape_tolerance(points))
+        points, axes = table_object_shape(_buildable(label, make), label)
+        _SHAPES[label] = estimate_symmetry(points, shape_tolerance(points), axes)
     return _SHAPES[label]
 
 

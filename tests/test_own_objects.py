@@ -99,3 +99,8 @@ def test_a_small_cube_has_the_24_rotations_of_a_cube(tmp_path, half):
 def test_a_thin_square_prism_has_the_8_rotations_of_a_square_prism(tmp_path):
     prism = '<geom type="box" size="0.006 0.006 0.03" group="0" density="300"/>'
     assert object_spec(mjcf(tmp_path, prism)).symmetry.rotations.shape[0] == 8
+
+
+def test_a_cube_turned_inside_its_body_has_the_24_rotations_of_a_cube(tmp_path):
+    turned = '<geom type="box" size="0.02 0.02 0.02" euler="0.3 0 0.5" group="0" density="300"/>'
+    assert object_spec(mjcf(tmp_path, turned)).symmetry.rotations.shape[0] == 24

@@ -8,6 +8,7 @@ object unchanged; two poses that differ by one of them are the same physical pos
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -125,7 +126,7 @@ SAME_QUATERNION = math.cos(SAME_ROTATION / 2)
 
 
 @checked
-def estimate_symmetry(points: Tensor, tolerance: float) -> Symmetry:
+def estimate_symmetry(points: Tensor, tolerance: float, axes: Tensor | None = None) -> Symmetry:
     """The rotational symmetry of a shape, found by turning its surface points onto
     themselves about its frame origin.
 
@@ -144,6 +145,8 @@ def estimate_symmetry(points: Tensor, tolerance: float) -> Symmetry:
     Args:
         points: (N, 3) points on the shape's surface, in its frame (N >= 100).
         tolerance: how far, in the points' unit, a turned point may lie from the shape.
+        axes: (K, 3) more axes to try after the frame's and the principal ones (the frames of
+            the model's parts; default none).
 
     Returns:
         the ``Symmetry`` (one continuous axis at most: a sphere is taken as symmetric about
@@ -166,7 +169,7 @@ def estimate_symmetry(points: Tensor, tolerance: float) -> Symmetry:
     def holds(rotvec: Tensor) -> bool:
         return misfit(rotvec) <= tolerance
 
-    axes = _candidate_axes(p)
+    axes = _candidate_axes(p, () if axes is None else axes.double())
     continuous = next(
         (a for a in axes if all(holds(angle * a) for angle in CONTINUOUS_TEST_ANGLES)), None
     )
@@ -201,12 +204,12 @@ def _order(misfits: dict[int, float], tolerance: float) -> int | None:
     return max(n for n in held if n % best == 0)
 
 
-def _candidate_axes(points: Tensor) -> list[Tensor]:
-    """The frame's axes and the principal axes of ``points`` about the origin, those within
-    about 8 degrees of an earlier one left out."""
+def _candidate_axes(points: Tensor, extra: Tensor | Sequence = ()) -> list[Tensor]:
+    """The frame's axes, the principal axes of ``points`` about the origin and the ``extra``
+    axes, those within about 8 degrees of an earlier one left out."""
     _, vectors = torch.linalg.eigh(points.T @ points)
     axes: list[Tensor] = []
-    for a in [*torch.eye(3, dtype=points.dtype), *vectors.T]:
+    for a in [*torch.eye(3, dtype=points.dtype), *vectors.T, *extra]:
         if all(abs(float(a @ b)) < 0.99 for b in axes):
             axes.append(a / a.norm())
     return axes
