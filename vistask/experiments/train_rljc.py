@@ -122,8 +122,8 @@ def train_rljc(
     start = time.perf_counter()
     out = run_dir("train_rljc", out)
     settings = {"env_id": env_id, "env_kwargs": env_kwargs or {}, "interactions": interactions}
-    settings["seed"] = seed
-    if hyperparams:
+    settings |= {"seed": seed}
+    if hyperparams:  # absent, not empty, in runs of the defaults: those resume as before
         settings["hyperparams"] = hyperparams
     check_same_settings(out / "settings.json", settings)
     env = gym.make(env_id, **(env_kwargs or {}))
