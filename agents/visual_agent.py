@@ -5,6 +5,7 @@ callbacks and TensorBoard, ``predict`` on one image or a batch, ``save`` and ``l
 from __future__ import annotations
 
 import numbers
+import pickle
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -333,17 +334,19 @@ class VisualAgent(SB3Model):
             )
 
     def _env_copies_mb(self) -> float:
-        """MB that the ``n_envs - 1`` copies of the env that the exploring databases step take,
-        from one copy made and dropped here: an env that cannot be copied says so before any
-        work is done."""
+        """MB that the ``n_envs - 1`` copies of the env that the exploring databases step take:
+        the size of the env pickled (0 where it does not pickle). One copy is made and dropped
+        first, so that an env that cannot be copied says so before any work is done."""
         if self.n_envs == 1 or steps_own_copies(self.env):
             return 0.0
-        process = psutil.Process()
-        before = process.memory_info().rss
-        copy = copy_env(self.env)
-        grown = process.memory_info().rss - before
-        copy.close()
-        return (self.n_envs - 1) * max(grown, 0) / 2**20
+        copy_env(self.env).close()
+        buffers = []  # arrays' data, counted without being copied (out-of-band)
+        try:
+            stream = pickle.dumps(self.env, protocol=5, buffer_callback=buffers.append)
+        except Exception:  # a lambda, a lock: deep copies may still work
+            return 0.0
+        size = len(stream) + sum(buffer.raw().nbytes for buffer in buffers)
+        return (self.n_envs - 1) * size / 2**20
 
     @property
     def rewards_seen(self) -> int:
