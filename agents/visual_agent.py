@@ -37,7 +37,7 @@ from vistask.rlvc import (
     check_image_env,
     collect_chunks,
 )
-from vistask.rlvc.copies import copy_env, steps_own_copies
+from vistask.rlvc.copies import copy_env, steps_own_copies, warn_unmade_settings
 from vistask.rlvc.split import CELL_BYTES, TABLE_CELLS
 from vistask.saving import load_state, save_state
 
@@ -339,7 +339,9 @@ class VisualAgent(SB3Model):
         first, so that an env that cannot be copied says so before any work is done."""
         if self.n_envs == 1 or steps_own_copies(self.env):
             return 0.0
-        copy_env(self.env).close()
+        made = copy_env(self.env)
+        warn_unmade_settings(self.env, made)
+        made.close()
         buffers = []  # arrays' data, counted without being copied (out-of-band)
         try:
             stream = pickle.dumps(self.env, protocol=5, buffer_callback=buffers.append)

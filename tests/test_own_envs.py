@@ -3,6 +3,7 @@ what is wrong before work is lost."""
 
 import re
 import threading
+import warnings
 
 import gymnasium as gym
 import numpy as np
@@ -147,9 +148,14 @@ def shaping(reward):
     return 2 * reward
 
 
+def registered() -> str:
+    if "test_own_envs/Corridor-v0" not in gym.registry:
+        gym.register("test_own_envs/Corridor-v0", entry_point=Corridor, max_episode_steps=20)
+    return "test_own_envs/Corridor-v0"
+
+
 def test_an_env_made_with_a_function_argument_is_the_same_env_in_every_process():
-    gym.register("test_own_envs/Corridor-v0", entry_point=Corridor, max_episode_steps=20)
-    identity = env_identity(gym.make("test_own_envs/Corridor-v0", position=shaping))
+    identity = env_identity(gym.make(registered(), position=shaping))
     assert identity[1]["position"] == f"{__name__}.shaping"
 
 
@@ -220,3 +226,14 @@ def test_the_wrappers_refuse_an_env_of_other_images_than_the_classes_were_learne
             VisualClasses(gym.wrappers.TimeLimit(Wide(), 20), learned.classifier)
         with pytest.raises(ValueError, match="VisualFeatures: the vocabulary"):
             VisualFeatures(gym.wrappers.TimeLimit(Wide(), 20), learned.extractor)
+
+
+def test_a_setting_changed_after_gym_make_is_named_since_the_copies_do_not_see_it():
+    env = gym.make(registered(), cells=10)
+    env.unwrapped.cells = 8
+    with pytest.warns(UserWarning, match=r"cells 8 \(copies: 10\)"):
+        RLVCAgent(env, n_words=64, n_envs=2).learn(600)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        RLVCAgent(gym.make(registered(), cells=10), n_words=64, n_envs=2).learn(600)
+    assert not any("copies:" in str(w.message) for w in caught)

@@ -5,11 +5,13 @@ checked against the observation space."""
 from __future__ import annotations
 
 import copy
+import inspect
+import numbers
 
 import gymnasium as gym
 import numpy as np
 
-from vistask.checks import checked
+from vistask.checks import checked, warn
 
 
 @checked
@@ -84,3 +86,25 @@ def copy_env(env: gym.Env) -> gym.Env:
             "a spec: pass n_envs=1, register the env (gymnasium.register) and make it with "
             "gym.make, or let it deep-copy"
         ) from error
+
+
+def warn_unmade_settings(env: gym.Env, made: gym.Env) -> None:
+    """Warn where ``made``, a copy of ``env`` made again from its spec, differs from ``env`` in
+    a setting: an attribute of the unwrapped env named like an argument of its class, a number
+    or a string, changed on ``env`` after ``gym.make`` (which the copies do not see)."""
+    if env.spec is None or made.unwrapped is env.unwrapped:
+        return
+    ours, theirs = vars(env.unwrapped), vars(made.unwrapped)
+    changed = [
+        f"{name} {ours[name]!r} (copies: {theirs[name]!r})"
+        for name in inspect.signature(type(env.unwrapped).__init__).parameters
+        if isinstance(ours.get(name), numbers.Number | str)
+        and type(ours[name]) is type(theirs.get(name))
+        and ours[name] != theirs[name]
+    ]
+    if changed:
+        warn(
+            f"the env's {', '.join(changed)}: the episodes side by side run on copies made "
+            "again by gym.make from its spec, which do not see settings changed after it: "
+            "pass them to gym.make, or n_envs=1"
+        )
