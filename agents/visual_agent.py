@@ -4,7 +4,6 @@ callbacks and TensorBoard, ``predict`` on one image or a batch, ``save`` and ``l
 
 from __future__ import annotations
 
-import numbers
 import pickle
 import time
 from collections.abc import Iterator
@@ -124,11 +123,13 @@ class VisualAgent(SB3Model):
             raise ValueError(f"epsilon must be in [0, 1], got {epsilon!r}")
         if gamma is None and env is not None and hasattr(env.unwrapped, "gamma"):
             gamma = env.unwrapped.gamma
-            if not (isinstance(gamma, numbers.Real) and 0 <= gamma < 1):
+            try:
+                check_discount(gamma)
+            except (TypeError, ValueError):
                 raise ValueError(
                     f"the env's gamma attribute ({gamma!r}) is the agent's discount unless "
                     "gamma is given, and a discount is a number in [0, 1): pass gamma"
-                )
+                ) from None
         gamma = 0.99 if gamma is None else gamma
         check_discount(gamma)
         self.n_words, self.databases = int(n_words), int(databases)

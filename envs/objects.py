@@ -234,7 +234,8 @@ def check_mjcf(path: Path, root: ElementTree.Element) -> None:
     two robosuite keeps, or no geom of group 0; a free joint of the file's own (robosuite
     adds one); compiler settings and includes that robosuite does not follow (angles in
     degrees, ``meshdir``, ``texturedir``, ``assetdir``, ``<include>``)."""
-    if root.tag != "mujoco" or root.find("./worldbody/body/body[@name='object']") is None:
+    body = root.find("./worldbody/body/body[@name='object']")
+    if root.tag != "mujoco" or body is None:
         raise ValueError(
             f"{path} must be an MJCF <mujoco> model laid out as <worldbody><body><body "
             'name="object"> holding the geoms (robosuite\'s MujocoXMLObject layout)'
@@ -248,7 +249,6 @@ def check_mjcf(path: Path, root: ElementTree.Element) -> None:
             )
     if "0" not in {group for _, group in groups}:
         raise ValueError(f'{path}: no geom of group "0", robosuite\'s collision geoms')
-    body = root.find("./worldbody/body/body[@name='object']")
     if body.find(".//freejoint") is not None or any(
         joint.get("type") == "free" for joint in body.iter("joint")
     ):

@@ -121,8 +121,12 @@ def train_rljc(
     hyperparams = hyperparams_for(env_id, hyperparams, RLJCAgent)
     start = time.perf_counter()
     out = run_dir("train_rljc", out)
-    settings = {"env_id": env_id, "env_kwargs": env_kwargs or {}, "interactions": interactions}
-    settings |= {"seed": seed}
+    settings = {
+        "env_id": env_id,
+        "env_kwargs": env_kwargs or {},
+        "interactions": interactions,
+        "seed": seed,
+    }
     if hyperparams:  # absent, not empty, in runs of the defaults: those resume as before
         settings["hyperparams"] = hyperparams
     check_same_settings(out / "settings.json", settings)

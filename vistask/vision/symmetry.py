@@ -131,12 +131,12 @@ def estimate_symmetry(points: Tensor, tolerance: float, axes: Tensor | None = No
     themselves about its frame origin.
 
     A rotation is a symmetry when the turned points lie within ``tolerance`` of the shape
-    (95% of them: the points are samples). The axes tried are the frame's and the shape's
-    principal axes (about the origin). An axis about which three unrelated angles
-    (``CONTINUOUS_TEST_ANGLES``) are symmetries is continuous; about any other, the largest
-    order of ``ORDERS`` that the others that hold agree with is kept (``_order``). The finite
-    group is closed under composition; with a continuous axis it keeps the half-turns that
-    flip that axis.
+    (95% of them: the points are samples). The axes tried are the frame's, the shape's
+    principal axes (about the origin) and the ``axes`` given. An axis about which three
+    unrelated angles (``CONTINUOUS_TEST_ANGLES``) are symmetries is continuous; about any
+    other, the largest order of ``ORDERS`` that the others that hold agree with is kept
+    (``_order``). The finite group is closed under composition; with a continuous axis it
+    keeps the half-turns that flip that axis.
 
     Example:
         >>> estimate_symmetry(points_on_a_can, tolerance=0.002).axis
