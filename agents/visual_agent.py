@@ -427,6 +427,7 @@ class VisualAgent(SB3Model):
             groups=self.vocabulary_groups,
             seed=self.seed,
             image_shape=self.observation_space.shape,
+            env_id=getattr(self.env.spec, "id", None),
         )
         self.learner = self._new_learner()
         self.timing["vocabulary"] += time.perf_counter() - t0

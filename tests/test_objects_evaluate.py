@@ -65,6 +65,7 @@ def test_results_files_are_valid_json_and_markdown(records: list[dict], tmp_path
     text = (tmp_path / "results.md").read_text()
     assert text.count("| nbp | clutter |") == 5  # milk, box, bread, bread up to shape, all
     assert "| nbp | clutter | bread (shape only) | 1 | 100% (" in text
+    assert "| open3d | one_camera | box | 1 | 0% (0-79) | none found | 180.0 |" in text
     assert table == markdown_table(summary)
 
 

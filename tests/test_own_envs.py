@@ -228,6 +228,20 @@ def test_the_wrappers_refuse_an_env_of_other_images_than_the_classes_were_learne
             VisualFeatures(gym.wrappers.TimeLimit(Wide(), 20), learned.extractor)
 
 
+def test_the_wrappers_warn_where_the_classes_were_learned_on_another_registered_env(tmp_path):
+    if "test_own_envs/OtherCorridor-v0" not in gym.registry:
+        gym.register("test_own_envs/OtherCorridor-v0", entry_point=Corridor, max_episode_steps=20)
+    agent = RLVCAgent(gym.make(registered()), **SMALL).learn(1000)
+    agent.save(tmp_path / "agent.pt")
+    for learned in (agent, RLVCAgent.load(tmp_path / "agent.pt")):
+        with pytest.warns(UserWarning, match="learned on test_own_envs/Corridor-v0's images"):
+            VisualClasses(gym.make("test_own_envs/OtherCorridor-v0"), learned.classifier)
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            VisualClasses(gym.make(registered()), learned.classifier)
+            VisualFeatures(corridor(), learned.extractor)  # not registered: nothing to compare
+
+
 def test_a_setting_changed_after_gym_make_is_named_since_the_copies_do_not_see_it():
     env = gym.make(registered(), cells=10)
     env.unwrapped.cells = 8

@@ -50,7 +50,7 @@ class VisualFeatures(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
         compounds: Sequence[Compound] = (),
     ) -> None:
         check_image_space(env.observation_space, "VisualFeatures")
-        extractor.check_space(env.observation_space, "VisualFeatures")
+        extractor.check_env(env, "VisualFeatures")
         gym.utils.RecordConstructorArgs.__init__(self, extractor=extractor, compounds=compounds)
         gym.ObservationWrapper.__init__(self, env)
         self.extractor = extractor
@@ -85,7 +85,7 @@ class VisualClasses(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
             )
         check_image_space(env.observation_space, "VisualClasses")
         if hasattr(classifier, "extractor"):  # a classifier of vistask's
-            classifier.extractor.check_space(env.observation_space, "VisualClasses")
+            classifier.extractor.check_env(env, "VisualClasses")
         gym.utils.RecordConstructorArgs.__init__(self, classifier=classifier)
         gym.ObservationWrapper.__init__(self, env)
         self.classifier = classifier
@@ -117,7 +117,7 @@ class JointClasses(gym.ObservationWrapper, gym.utils.RecordConstructorArgs):
 
     def __init__(self, env: gym.Env, classifier: JointClassifier) -> None:
         check_image_space(env.observation_space, "JointClasses")
-        classifier.extractor.check_space(env.observation_space, "JointClasses")
+        classifier.extractor.check_env(env, "JointClasses")
         space = env.action_space
         if not isinstance(space, spaces.Box) or space.shape != (classifier.box_low.shape[1],):
             raise TypeError(

@@ -3,6 +3,7 @@ intervals per condition and object, and the table written beside ``summary.json`
 
 from __future__ import annotations
 
+import math
 import statistics
 from pathlib import Path
 
@@ -94,11 +95,16 @@ def markdown_table(summary: dict) -> str:
                     f"| {method} | {cond} | {kind} | {s['n_scenes']} "
                     f"| {100 * s['success']:.0f}% ({100 * s['ci_low']:.0f}-"
                     f"{100 * s['ci_high']:.0f}) "
-                    f"| {100 * s['median_translation_error_m']:.2f} "
+                    f"| {_median_cm(s['median_translation_error_m'])} "
                     f"| {s['median_rotation_error_deg']:.1f} | {s['seconds_per_scene']:.2f} "
                     f"| {100 * s['mean_visible_fraction']:.0f}% |"
                 )
     return "\n".join(lines)
+
+
+def _median_cm(metres: float) -> str:
+    # A method that found no pose in half the scenes or more has no finite median error.
+    return f"{100 * metres:.2f}" if math.isfinite(metres) else "none found"
 
 
 def write_results(summary: dict, out: Path, title: str = "Pose estimation") -> str:
@@ -110,7 +116,8 @@ def write_results(summary: dict, out: Path, title: str = "Pose estimation") -> s
         f"Success: translation error < {100 * SUCCESS_TRANSLATION_M:g} cm and rotation error "
         f"< {SUCCESS_ROTATION_DEG:g} deg, modulo the object's symmetry; 95% Wilson intervals. "
         "Seconds per scene: what the method extracts from the images (patches or clouds) plus "
-        "the method (rendering excluded). Visible: the target's visible pixels over its "
+        "the method (rendering excluded). Median errors: 'none found' where the method found "
+        "no pose in half the scenes or more. Visible: the target's visible pixels over its "
         "pixels with the distractors removed, in the camera that sees most of it (mean)."
     )
     (out / "results.md").write_text(f"# {title}\n\n{table}\n\n{note}\n")

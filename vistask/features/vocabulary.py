@@ -14,10 +14,12 @@ descriptor is compared with the coarse centres and then only with the prototypes
 from __future__ import annotations
 
 import hashlib
+import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
+import gymnasium as gym
 import numpy as np
 import torch
 
@@ -180,6 +182,8 @@ class VisualFeatureExtractor:
             dominant cost.
         image_shape: the shape of the images it was fitted on, which the wrappers check an
             env's observations against (None: not known).
+        env_id: the id of the registered env whose images it was fitted on; the wrappers warn
+            when they wrap another (None: not known).
     """
 
     def __init__(
@@ -190,6 +194,7 @@ class VisualFeatureExtractor:
         cache_size: int = CACHE_SIZE,
         groups: CoarseGroups | None = None,
         image_shape: tuple[int, ...] | None = None,
+        env_id: str | None = None,
     ) -> None:
         if centroids.ndim != 2 or centroids.shape[1] != keypoints.descriptor_size:
             raise ValueError(
@@ -212,20 +217,28 @@ class VisualFeatureExtractor:
         self.max_distance = max_distance
         self.cache_size = cache_size
         self.image_shape = None if image_shape is None else tuple(int(n) for n in image_shape)
+        self.env_id = env_id
         self._cache: dict[tuple, tuple] = {}  # image digest -> (words, xy, scale)
 
     def __getstate__(self) -> dict:
         # Pickled copies (subprocess vector envs) start with an empty cache.
         return {**self.__dict__, "_cache": {}}
 
-    def check_space(self, space, user: str) -> None:
-        """Raise ValueError, naming ``user``, where the observations of ``space`` are images of
-        another shape than the vocabulary was fitted on."""
-        shape = tuple(getattr(space, "shape", None) or ())
+    def check_env(self, env: gym.Env, user: str) -> None:
+        """Raise ValueError, naming ``user``, where ``env``'s observations are images of another
+        shape than the vocabulary was fitted on; warn where ``env`` is another registered env."""
+        shape = tuple(getattr(env.observation_space, "shape", None) or ())
         if self.image_shape is not None and shape != self.image_shape:
             raise ValueError(
                 f"{user}: the vocabulary was learned on images of shape {self.image_shape}; "
                 f"this env's observations are {shape}"
+            )
+        env_id = getattr(env.spec, "id", None)
+        if None not in (self.env_id, env_id) and env_id != self.env_id:
+            warnings.warn(
+                f"{user}: the vocabulary was learned on {self.env_id}'s images and wraps "
+                f"{env_id}: what it learned may not mean the same here",
+                stacklevel=3,
             )
 
     @property
@@ -259,6 +272,7 @@ class VisualFeatureExtractor:
         probes: int = 3,
         seed: int = 0,
         image_shape: tuple[int, ...] | None = None,
+        env_id: str | None = None,
     ) -> VisualFeatureExtractor:
         """Learn the vocabulary by k-means over descriptors of sample percepts.
 
@@ -278,6 +292,7 @@ class VisualFeatureExtractor:
                 nearest prototype of descriptors near a group border.
             seed: seed of the subset and of the k-means initialisation.
             image_shape: see the class (default: the shape of ``images``' first).
+            env_id: see the class.
         """
         check_at_least(2, n_words=n_words)  # one word is present in every percept
         check_at_least(1, max_descriptors=max_descriptors, iters=iters, probes=probes)
@@ -305,10 +320,18 @@ class VisualFeatureExtractor:
             image_shape = np.shape(images[0])
         if groups <= 0:
             centroids = kmeans(x, n_words, iters, seed)
-            return cls(keypoints, centroids, max_distance, image_shape=image_shape)
-        centroids, group_of, centres = grouped_kmeans(x, n_words, groups, iters, seed)
-        coarse = CoarseGroups(centres, group_of, probes)
-        return cls(keypoints, centroids, max_distance, groups=coarse, image_shape=image_shape)
+            coarse = None
+        else:
+            centroids, group_of, centres = grouped_kmeans(x, n_words, groups, iters, seed)
+            coarse = CoarseGroups(centres, group_of, probes)
+        return cls(
+            keypoints,
+            centroids,
+            max_distance,
+            groups=coarse,
+            image_shape=image_shape,
+            env_id=env_id,
+        )
 
     def nearest(self, x: torch.Tensor, k: int = 1) -> tuple[torch.Tensor, torch.Tensor]:
         """K nearest prototypes of descriptors x (M, D): (indices (M, k), squared distances)."""
@@ -406,6 +429,7 @@ class VisualFeatureExtractor:
                 "probes": self.groups.probes,
             },
             "image_shape": self.image_shape,
+            "env_id": self.env_id,
         }
 
     @classmethod
@@ -417,6 +441,7 @@ class VisualFeatureExtractor:
             state["max_distance"],
             groups=CoarseGroups(**state["groups"]) if state.get("groups") else None,
             image_shape=state.get("image_shape"),
+            env_id=state.get("env_id"),
         )
 
     def save(self, path: str | Path) -> None:
