@@ -253,6 +253,11 @@ class VisualAgent(SB3Model):
             )
         if checkpoint is not None and Path(checkpoint).is_dir():
             raise ValueError(f"checkpoint: {checkpoint} is a folder; name a file in it")
+        if self.env is None:
+            raise RuntimeError(
+                "the agent has no env to learn on: load it with load(path, env=...) or call "
+                "set_env(env) first"
+            )
         self._check_same_env(self.env, learning=True)
         self._check_memory(total_timesteps)
         name = tb_log_name or self.learner_class.__name__

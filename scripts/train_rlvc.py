@@ -86,9 +86,10 @@ def main() -> None:
     env = gym.make(args.env, **args.env_kwargs)
     env.close()
     continuous = isinstance(env.action_space, gym.spaces.Box)
-    try:  # an unknown key or a wrong compaction fails here, not after minutes
-        agent_kwargs(hyperparams_for(args.env, overrides, RLJCAgent if continuous else RLVCAgent))
-    except ValueError as error:
+    learner = RLJCAgent if continuous else RLVCAgent
+    try:  # an unknown key or a wrong value fails here, before the run's folder is made
+        learner(None, **agent_kwargs(hyperparams_for(args.env, overrides, learner)))
+    except (TypeError, ValueError) as error:
         parser.error(f"argument --hyperparams: {error}")
     (train_rljc if continuous else train_rlvc)(**run, hyperparams=overrides)
 

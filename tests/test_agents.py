@@ -127,6 +127,8 @@ def test_agent_save_load_round_trip_gives_identical_classes(small_agent, tmp_pat
     assert torch.equal(small_agent.classifier.classify(images), nearest)
     small_agent.classifier.save(tmp_path / "classes.pt")
     assert torch.equal(VisualClassifier.load(tmp_path / "classes.pt").classify(images), nearest)
+    with pytest.raises(RuntimeError, match=r"no env to learn on: load it with load\(path, env"):
+        RLVCAgent.load(tmp_path / "agent.pt").learn(1000)
 
 
 def test_load_refuses_other_spaces_and_bad_files(small_agent, tmp_path):

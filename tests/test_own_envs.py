@@ -12,6 +12,8 @@ import pytest
 from vistask.agents import RLJCAgent, RLVCAgent
 from vistask.checks import env_identity
 from vistask.envs.tapestry import make_tapestry
+from vistask.experiments.compare import compare
+from vistask.experiments.comparison import Comparison
 from vistask.rlvc import check_image_env
 from vistask.wrappers import JointClasses, VisualClasses, VisualFeatures
 
@@ -251,3 +253,26 @@ def test_a_setting_changed_after_gym_make_is_named_since_the_copies_do_not_see_i
         warnings.simplefilter("always")
         RLVCAgent(gym.make(registered(), cells=10), n_words=64, n_envs=2).learn(600)
     assert not any("copies:" in str(w.message) for w in caught)
+
+
+def test_a_comparison_with_sb3_runs_on_an_env_without_an_oracle(tmp_path):
+    env_id = registered()
+    assert "tabular" not in Comparison(env_id=env_id).methods
+    with pytest.raises(ValueError, match="tabular baseline learns on the true state"):
+        Comparison(env_id=env_id, methods=("rlvc", "tabular"))
+    with pytest.warns(UserWarning, match=r"ppo first updates its network after 1024"):
+        Comparison(env_id=env_id, methods=("ppo",), budgets=(500, 2000))
+    config = Comparison.quick(
+        env_id=env_id, methods=("rlvc", "ppo", "random"), budgets=(300, 600), eval_starts=5
+    )
+    summary = compare(config, tmp_path, progress=False, workers=1)
+    assert summary["failed"] == [] and summary["oracle_return"] is None
+    rlvc = summary["methods"]["rlvc"]
+    assert rlvc["final_ratio"] is None and "interactions_to_90pct" not in rlvc
+    # Episodes end at the goal with reward 1: RLVC's greedy walk reaches it from every start.
+    assert rlvc["final_return"] == 1.0
+    assert summary["methods"]["random"]["final_return"] < 1.0
+    table = (tmp_path / "table.md").read_text()
+    assert "no oracle" in table and "| rlvc | 1.00 [" in table
+    for picture in ("curves", "aggregates", "profiles", "wallclock"):
+        assert (tmp_path / f"{picture}.png").stat().st_size > 0

@@ -80,6 +80,18 @@ def test_transform_rejects_non_images(agent):
         transform._apply_transform(torch.zeros(4, 7))
 
 
+def test_transforms_refuse_images_of_another_shape_than_learned_on(agent):
+    other = GymEnv(ENV_ID, window=48, **SMALL)
+    for transform in (
+        VisualFeatureTransform(agent.extractor),
+        VisualClassTransform(agent.classifier),
+    ):
+        with pytest.raises(ValueError, match=r"learned on images of shape \(64, 64, 3\)"):
+            TransformedEnv(other, transform).rollout(2)
+        with pytest.raises(ValueError, match=r"the images under 'pixels' are \(48, 48, 3\)"):
+            transform._apply_transform(torch.zeros(2, 48, 48, 3, dtype=torch.uint8))
+
+
 def test_compounds_follow_the_words_in_the_wrapper_and_the_transform(agent):
     maze = gym.make(ENV_ID, **SMALL)
     images = [maze.reset(seed=s)[0] for s in range(20)]

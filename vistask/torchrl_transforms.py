@@ -46,6 +46,23 @@ class _ImageTransform(Transform):
     def _spec(self, device) -> TensorSpec:
         raise NotImplementedError
 
+    def _vocabulary(self) -> VisualFeatureExtractor | None:
+        raise NotImplementedError
+
+    def _images(self, pixels: torch.Tensor) -> tuple[list[np.ndarray], torch.Size]:
+        images = _images(pixels)
+        self._check_shape(tuple(pixels.shape[-3:]))
+        return images
+
+    def _check_shape(self, shape: tuple) -> None:
+        """Refuse images of another shape than the vocabulary was learned on."""
+        vocabulary = self._vocabulary()
+        if vocabulary is not None and vocabulary.image_shape not in (None, shape):
+            raise ValueError(
+                f"{type(self).__name__}: the vocabulary was learned on images of shape "
+                f"{vocabulary.image_shape}; the images under {self.in_keys[0]!r} are {shape}"
+            )
+
     def _reset(self, tensordict, tensordict_reset):
         # Transform._reset passes resets through untouched; the first observation needs it too.
         return self._call(tensordict_reset)
@@ -57,6 +74,7 @@ class _ImageTransform(Transform):
                 f"{type(self).__name__} needs (H, W, 3) uint8 images under "
                 f"{self.in_keys[0]!r}, got {image_spec}"
             )
+        self._check_shape(tuple(image_spec.shape[-3:]))
         batch = image_spec.shape[:-3]
         spec = self._spec(image_spec.device)
         observation_spec[self.out_keys[0]] = spec.expand(*batch, *spec.shape)
@@ -91,8 +109,11 @@ class VisualFeatureTransform(_ImageTransform):
         n = self.extractor.n_features + len(self.compounds)
         return Binary(n=n, shape=(n,), device=device, dtype=torch.int8)
 
+    def _vocabulary(self) -> VisualFeatureExtractor:
+        return self.extractor
+
     def _apply_transform(self, pixels: torch.Tensor) -> torch.Tensor:
-        images, batch = _images(pixels)
+        images, batch = self._images(pixels)
         presence = self.extractor.presence(images, self.compounds).to(torch.int8)
         return presence.reshape(*batch, -1).to(pixels.device)
 
@@ -122,6 +143,9 @@ class VisualClassTransform(_ImageTransform):
             return torch.as_tensor(self.classifier.classify(list(images)), dtype=torch.int64)
         return torch.tensor([int(self.classifier(image)) for image in images], dtype=torch.int64)
 
+    def _vocabulary(self) -> VisualFeatureExtractor | None:
+        return getattr(self.classifier, "extractor", None)  # a classifier of vistask's
+
     def _apply_transform(self, pixels: torch.Tensor) -> torch.Tensor:
-        images, batch = _images(pixels)
+        images, batch = self._images(pixels)
         return self._classes(images).reshape(batch).to(pixels.device)

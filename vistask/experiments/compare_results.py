@@ -22,11 +22,11 @@ def interactions_to(budgets: Sequence[int], curve: np.ndarray, target: float) ->
 
 
 def aggregate(
-    results: list[RunResult], budgets: Sequence[int], oracle_return: float
+    results: list[RunResult], budgets: Sequence[int], oracle_return: float | None
 ) -> dict[str, dict]:
     """Per method: IQM curve with its stratified-bootstrap CI (rliable), interactions to each
-    threshold (from the IQM, and the interval given by the CI's upper and lower curves),
-    final return and seconds."""
+    threshold of the oracle's return (from the IQM, and the interval given by the CI's upper
+    and lower curves; None without an oracle), final return and seconds."""
     methods = list(dict.fromkeys(r.method for r in results))
     scores = {m: np.array([r.returns for r in results if r.method == m]) for m in methods}
     curves = statistics.iqm_curves(scores)  # (S, B) -> IQM and CI per budget
@@ -43,12 +43,12 @@ def aggregate(
             "final_return": float(center[-1]),
             "final_ci": [float(low[-1]), float(high[-1])],
             "oracle_return": oracle_return,
-            "final_ratio": float(center[-1] / oracle_return),
+            "final_ratio": None if oracle_return is None else float(center[-1] / oracle_return),
             "seconds": float(sum(r.seconds for r in runs)),
             "train_seconds": float(sum(r.train_seconds for r in runs)),
             "seeds": [r.seed for r in runs],
         }
-        for frac in THRESHOLDS:
+        for frac in THRESHOLDS if oracle_return is not None else ():
             pct = round(frac * 100)
             entry[f"interactions_to_{pct}pct"] = interactions_to(
                 budgets, center, frac * oracle_return
@@ -73,7 +73,7 @@ def speedups(methods: dict[str, dict], budgets: Sequence[int]) -> dict[str, obje
     """
     out: dict[str, object] = {}
     learner = next((m for m in ("rlvc", "rljc") if m in methods), None)
-    if learner is None:
+    if learner is None or "interactions_to_90pct" not in methods[learner]:  # no oracle
         return out
     sb3 = [methods[m] for m in ("dqn", "ppo", "sac") if m in methods]
     for frac in THRESHOLDS:
@@ -101,12 +101,26 @@ def format_cell(value) -> str:
     return f"{value:.3g}" if isinstance(value, float) else str(value)
 
 
-def markdown_table(methods: dict[str, dict], oracle_return: float) -> str:
-    """One row per method: interactions to 90% / 75% of the oracle, final return, seconds."""
+def markdown_table(methods: dict[str, dict], oracle_return: float | None) -> str:
+    """One row per method: interactions to 90% / 75% of the oracle (with one), final
+    return, seconds."""
+    if oracle_return is None:
+        lines = [
+            "Mean episode reward over seeded episodes (the env has no oracle)",
+            "",
+            "| method | final return (IQM [95% CI]) | seconds |",
+            "|---|---|---|",
+        ]
+        for name, m in methods.items():
+            lo, hi = m["final_ci"]
+            lines.append(
+                f"| {name} | {m['final_return']:.2f} [{lo:.2f}, {hi:.2f}] | {m['seconds']:.0f} |"
+            )
+        return "\n".join(lines) + "\n"
     lines = [
         f"Oracle mean discounted return: {oracle_return:.2f}",
         "",
-        "| method | interactions to 90% oracle | interactions to 75% oracle (extra) "
+        "| method | interactions to 90% oracle | interactions to 75% oracle "
         "| final return (IQM [95% CI]) | final / oracle | seconds |",
         "|---|---|---|---|---|---|",
     ]
@@ -142,18 +156,25 @@ PROFILE_TAUS = np.linspace(0.0, 1.2, 25)  # thresholds on return / oracle
 
 
 def final_statistics(methods: dict[str, dict], learner: str | None) -> dict[str, object]:
-    """Rliable's view of the final returns as fractions of the oracle's: median, IQM, mean
-    and optimality gap with intervals, performance profiles, and the probability that a
-    ``learner`` run beats a run of each other method."""
-    scores = {
-        name: m["curve"]["per_seed"][:, -1] / m["oracle_return"] for name, m in methods.items()
-    }
-    aggregates, profiles = statistics.aggregates_and_profiles(scores, PROFILE_TAUS)
+    """Rliable's view of the final returns as fractions of the oracle's (the returns
+    themselves without an oracle): median, IQM, mean and optimality gap (with an oracle) with
+    intervals, performance profiles, and the probability that a ``learner`` run beats a run of
+    each other method."""
+    oracle = next(iter(methods.values()))["oracle_return"]
+    scores = {name: m["curve"]["per_seed"][:, -1] / (oracle or 1.0) for name, m in methods.items()}
+    taus = PROFILE_TAUS
+    if oracle is None:  # thresholds over the returns met
+        finals = np.concatenate(list(scores.values()))
+        taus = np.linspace(min(0.0, finals.min()), finals.max(), len(PROFILE_TAUS))
+    aggregates, profiles = statistics.aggregates_and_profiles(scores, taus)
+    if oracle is None:  # the gap to a return of 1 means nothing without an oracle
+        for metrics in aggregates.values():
+            metrics.pop("Optimality gap", None)
     pairs = [(learner, other) for other in methods if other != learner] if learner else []
     return {
         "aggregates": aggregates,
         "profiles": {
-            "taus": PROFILE_TAUS,
+            "taus": taus,
             **{
                 name: {"fraction": p[0], "ci_low": p[1], "ci_high": p[2]}
                 for name, p in profiles.items()
@@ -163,7 +184,9 @@ def final_statistics(methods: dict[str, dict], learner: str | None) -> dict[str,
     }
 
 
-def write_pictures(out: Path, methods: dict[str, dict], stats: dict, budgets, oracle: float):
+def write_pictures(
+    out: Path, methods: dict[str, dict], stats: dict, budgets, oracle: float | None
+) -> None:
     """Rliable's plots: ``curves.png`` (IQM return against interactions, log x, with 95%
     intervals), ``aggregates.png``, ``profiles.png`` and ``improvement.png``; and
     ``wallclock.png``, the return against training seconds."""
@@ -172,19 +195,20 @@ def write_pictures(out: Path, methods: dict[str, dict], stats: dict, budgets, or
         for name, c in ((n, m["curve"]) for n, m in methods.items())
     }
     statistics.plot_sample_efficiency(out / "curves.png", budgets, curves, oracle)
-    statistics.plot_aggregates(out / "aggregates.png", stats["aggregates"])
+    score = "return / oracle" if oracle is not None else "episode reward"
+    statistics.plot_aggregates(out / "aggregates.png", stats["aggregates"], score)
     profiles = {
         name: (np.array(p["fraction"]), np.array(p["ci_low"]), np.array(p["ci_high"]))
         for name, p in stats["profiles"].items()
         if name != "taus"
     }
-    statistics.plot_profiles(out / "profiles.png", profiles, PROFILE_TAUS)
+    statistics.plot_profiles(out / "profiles.png", profiles, stats["profiles"]["taus"], score)
     plot_wallclock(out / "wallclock.png", methods, oracle)
     if stats["improvement"]:
         statistics.plot_improvement(out / "improvement.png", stats["improvement"])
 
 
-def plot_wallclock(path: Path, methods: dict[str, dict], oracle: float) -> None:
+def plot_wallclock(path: Path, methods: dict[str, dict], oracle: float | None) -> None:
     """IQM return against the median training seconds behind it (log x), per method that
     trains (the random baseline does not)."""
     import matplotlib
@@ -198,11 +222,12 @@ def plot_wallclock(path: Path, methods: dict[str, dict], oracle: float) -> None:
         if seconds is None or not np.all(np.asarray(seconds) > 0):
             continue
         ax.plot(seconds, m["curve"]["iqm"], marker="o", label=name)
-    ax.axhline(oracle, color="k", linestyle="--", label="oracle (true state)")
-    ax.axhline(0.9 * oracle, color="k", linestyle=":", label="90% of oracle")
+    if oracle is not None:
+        ax.axhline(oracle, color="k", linestyle="--", label="oracle (true state)")
+        ax.axhline(0.9 * oracle, color="k", linestyle=":", label="90% of oracle")
     ax.set_xscale("log")
     ax.set_xlabel("training seconds (median over seeds; one CPU thread a run)")
-    ax.set_ylabel("IQM discounted return")
+    ax.set_ylabel("IQM return")
     ax.legend(fontsize="small")
     ax.grid(alpha=0.3)
     fig.tight_layout()

@@ -17,7 +17,7 @@ import numpy as np
 from vistask.agents import RLJCAgent, RLVCAgent, TabularQAgent
 from vistask.envs.maze_oracle import Policy
 from vistask.experiments.comparison import Comparison
-from vistask.experiments.tasks import GridCells, Task, task_for
+from vistask.experiments.tasks import EpisodeTask, GridCells, Task, task_for
 from vistask.rlvc import random_policy
 from vistask.runs import (
     tensorboard,
@@ -41,7 +41,7 @@ class RunResult:
     seconds_at: list[float] | None = None
 
 
-# evaluate(policy) -> mean discounted return from the fixed starts;
+# evaluate(policy) -> mean return from the task's fixed starts or episodes;
 # log(budget, value, training seconds behind the policy evaluated).
 Evaluate = Callable[[Policy], float]
 Log = Callable[[int, float, float], None]
@@ -113,7 +113,7 @@ def run_tabular(
 
 
 def run_random(
-    seed: int, budgets: Sequence[int], evaluate: Evaluate, log: Log, task: Task
+    seed: int, budgets: Sequence[int], evaluate: Evaluate, log: Log, task: Task | EpisodeTask
 ) -> tuple[list[float], list[float]]:
     """Uniformly random actions: no learning, the same score at every budget up to noise."""
     returns = []
@@ -208,7 +208,9 @@ def run_specs(config: Comparison, methods: Sequence[str], grid: int | None) -> l
     return sorted(specs, key=lambda s: (s.method not in ("dqn", "ppo", "sac"), -max(s.budgets)))
 
 
-def run_method(config: Comparison, spec: RunSpec, task: Task, tb_root: Path) -> RunResult:
+def run_method(
+    config: Comparison, spec: RunSpec, task: Task | EpisodeTask, tb_root: Path
+) -> RunResult:
     """Train and evaluate one ``spec``; logs ``eval/return`` against interactions to
     ``tb_root/<method>-seed<seed>``."""
     method, seed, budgets = spec.method, spec.seed, spec.budgets
@@ -242,16 +244,18 @@ def run_method(config: Comparison, spec: RunSpec, task: Task, tb_root: Path) -> 
     return RunResult(method, seed, list(budgets), returns, train, seconds, classes, at)
 
 
-def comparison_task(config: Comparison) -> Task | None:
-    """The comparison's task, built once per process (the oracle's solution takes a while)."""
+def comparison_task(config: Comparison) -> Task | EpisodeTask:
+    """The comparison's task, built once per process (the oracle's solution takes a while):
+    the env's oracle task, else seeded episodes."""
     return _cached_task(
         config.env_id, json.dumps(config.env_kwargs, sort_keys=True), config.eval_starts
     )
 
 
 @functools.lru_cache(maxsize=4)
-def _cached_task(env_id: str, env_kwargs: str, eval_starts: int) -> Task | None:
-    return task_for(env_id, json.loads(env_kwargs), eval_starts)
+def _cached_task(env_id: str, env_kwargs: str, eval_starts: int) -> Task | EpisodeTask:
+    kwargs = json.loads(env_kwargs)
+    return task_for(env_id, kwargs, eval_starts) or EpisodeTask(env_id, kwargs, eval_starts)
 
 
 def execute(job: tuple[Comparison, RunSpec]) -> tuple[RunResult, dict[str, bytes]]:

@@ -3,11 +3,14 @@ env, and the baselines' settings after rl-zoo3."""
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Callable, Sequence
 
 import gymnasium as gym
 
 from vistask.checks import check_at_least
+from vistask.experiments.tasks import has_oracle
+from vistask.rlvc.database import check_image_env
 
 DISCRETE_METHODS = ("rlvc", "rlvc_compounds", "dqn", "ppo", "tabular", "random")
 CONTINUOUS_METHODS = ("rljc", "sac", "ppo", "random")
@@ -25,14 +28,18 @@ class Comparison:
         >>> summary = compare(Comparison(methods=("rlvc", "tabular"), seeds=3), out="runs/c")
 
     Args:
-        env_id, env_kwargs: the environment (``gym.make`` arguments): one with an oracle
-            (``tasks.task_for``).
+        env_id, env_kwargs: the environment (``gym.make`` arguments), of image observations.
+            Methods are scored against the oracle of the envs that have one
+            (``tasks.task_for``), and by their mean episode reward on any other
+            (``tasks.EpisodeTask``).
         methods: subset of ``DISCRETE_METHODS`` for an env with discrete actions, of
-            ``CONTINUOUS_METHODS`` for continuous ones (None: all of them).
+            ``CONTINUOUS_METHODS`` for continuous ones (None: all of them; "tabular" only on
+            an env with an oracle).
         budgets: increasing interaction budgets at which every method is evaluated.
         seeds: number of seeds (seed k uses ``seed0 + k``).
         seed0: first seed.
-        eval_starts: number of fixed evaluation start positions.
+        eval_starts: number of fixed evaluation start positions (episodes on an env without
+            an oracle).
         grid: cells per dimension of the tabular baseline's true-state grid (None: as many
             cells as RLVC's classes at the largest budget, the paper's "equivalent number of
             states"; RLVC then runs first).
@@ -61,10 +68,19 @@ class Comparison:
     ) -> None:
         env = gym.make(env_id, **(env_kwargs or {}))
         continuous = isinstance(env.action_space, gym.spaces.Box)
+        check_image_env(env, continuous)
+        oracle = has_oracle(env)
         env.close()
         allowed = CONTINUOUS_METHODS if continuous else DISCRETE_METHODS
+        if not oracle:  # the tabular baseline learns on the true state, which only they give
+            allowed = tuple(m for m in allowed if m != "tabular")
         methods = allowed if methods is None else tuple(methods)
         budgets = tuple(int(b) for b in budgets)
+        if "tabular" in methods and not oracle:
+            raise ValueError(
+                f"the tabular baseline learns on the true state, which {env_id} does not give "
+                "(only the envs with an oracle do): leave tabular out"
+            )
         unknown = set(methods) - set(allowed)
         if unknown or not methods:
             kind = "continuous" if continuous else "discrete"
@@ -87,6 +103,26 @@ class Comparison:
         self.dqn_kwargs, self.ppo_kwargs = dict(dqn_kwargs or {}), dict(ppo_kwargs or {})
         self.sac_kwargs = dict(sac_kwargs or {})
         self.ppo_envs = ppo_envs
+        self._warn_untrained()
+
+    def _warn_untrained(self) -> None:
+        """Warn where a budget comes before an SB3 baseline's first update: its policy is
+        scored untrained there."""
+        for method in ("dqn", "ppo", "sac"):
+            if method not in self.methods:
+                continue
+            kwargs = self.sb3_kwargs(method)
+            if method == "ppo":
+                first = kwargs["n_steps"] * self.ppo_envs
+            else:
+                first = kwargs.get("learning_starts", 100) + kwargs.get("train_freq", 1)
+            early = [b for b in self.budgets if b < first]
+            if early:
+                warnings.warn(
+                    f"{method} first updates its network after {first} interactions: at the "
+                    f"budgets {early} it is scored untrained",
+                    stacklevel=3,
+                )
 
     def params(self) -> dict:
         """The constructor's arguments (written to ``summary.json``)."""

@@ -228,26 +228,32 @@ def _save(fig, path: Path) -> None:
     plt.close(fig)
 
 
-def plot_aggregates(path: Path, aggregates: Mapping[str, Mapping[str, list[float]]]) -> None:
-    """Rliable's interval plot of ``aggregate_metrics``' output."""
+def plot_aggregates(
+    path: Path, aggregates: Mapping[str, Mapping[str, list[float]]], xlabel: str = "return / oracle"
+) -> None:
+    """Rliable's interval plot of ``aggregate_metrics``' output (the metrics it holds)."""
     import matplotlib
 
     matplotlib.use("Agg")
     from rliable import plot_utils
 
-    points = {m: np.array([v[k][0] for k in METRICS]) for m, v in aggregates.items()}
+    metrics = [k for k in METRICS if k in next(iter(aggregates.values()))]
+    points = {m: np.array([v[k][0] for k in metrics]) for m, v in aggregates.items()}
     cis = {
-        m: np.array([[v[k][1] for k in METRICS], [v[k][2] for k in METRICS]])
+        m: np.array([[v[k][1] for k in metrics], [v[k][2] for k in metrics]])
         for m, v in aggregates.items()
     }
     fig, _ = plot_utils.plot_interval_estimates(
-        points, cis, metric_names=list(METRICS), xlabel="return / oracle", xlabel_y_coordinate=-0.3
+        points, cis, metric_names=metrics, xlabel=xlabel, xlabel_y_coordinate=-0.3
     )
     _save(fig, path)
 
 
 def plot_profiles(
-    path: Path, profiles: Mapping[str, tuple[np.ndarray, ...]], taus: Sequence[float]
+    path: Path,
+    profiles: Mapping[str, tuple[np.ndarray, ...]],
+    taus: Sequence[float],
+    score: str = "return / oracle",
 ) -> None:
     """Rliable's performance-profile plot of ``performance_profiles``' output."""
     import matplotlib
@@ -261,7 +267,7 @@ def plot_profiles(
         {m: p[0] for m, p in profiles.items()},
         np.asarray(taus),
         performance_profile_cis={m: np.stack([p[1], p[2]]) for m, p in profiles.items()},
-        xlabel=r"return / oracle ($\tau$)",
+        xlabel=rf"{score} ($\tau$)",
         ax=ax,
     )
     ax.legend(list(profiles), fontsize="small", loc="lower left")
@@ -288,7 +294,7 @@ def plot_sample_efficiency(
         {m: c[0] for m, c in curves.items()},
         {m: np.stack([c[1], c[2]]) for m, c in curves.items()},
         xlabel="environment interactions",
-        ylabel="IQM discounted return",
+        ylabel="IQM return",
         labelsize="medium",
         ticklabelsize="medium",
         ax=ax,

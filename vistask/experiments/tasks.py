@@ -1,6 +1,7 @@
 """The envs that have an oracle, seen alike by the experiments: fixed evaluation starts, the
 oracle's return from them, a batched evaluation of any policy, and the true-state cells that the
-privileged tabular baseline learns on.
+privileged tabular baseline learns on. Any other env is an ``EpisodeTask``: seeded episodes,
+no oracle.
 
 Example:
     >>> task = task_for("vistask/VisualMountainCar-v0")
@@ -14,6 +15,7 @@ import numpy as np
 from gymnasium import spaces
 
 import vistask.envs  # noqa: F401  (registers the environments)
+from vistask.checks import check_at_least
 from vistask.envs import (
     MazeOracle,
     VisualMazeContinuousEnv,
@@ -141,11 +143,55 @@ class PlaceTask:
         return percepts, self.oracle.optimal_actions(states)
 
 
+class EpisodeTask:
+    """An env without an oracle: a policy's score is its mean episode reward (undiscounted)
+    over ``episodes`` episodes, the first reset with seed 0 (SB3's ``evaluate_policy``), so
+    that every policy meets the same episodes. ``oracle_return`` is None.
+
+    Example:
+        >>> task = EpisodeTask("my_envs:my/Grid-v0", episodes=20)
+        >>> task.evaluate(lambda percepts, states: agent.predict(percepts)[0]).mean
+    """
+
+    oracle_return = None
+
+    def __init__(self, env_id: str, env_kwargs: dict | None = None, episodes: int = 100) -> None:
+        check_at_least(1, episodes=episodes)
+        self.env = gym.make(env_id, **(env_kwargs or {}))
+        self.episodes = episodes
+
+    def evaluate(self, policy: Policy) -> EvaluationResult:
+        """Episode rewards of a batched ``policy(percepts, None)``."""
+        from stable_baselines3.common.evaluation import evaluate_policy as sb3_evaluate_policy
+
+        self.env.reset(seed=0)  # seeds the episodes that follow
+        rewards, steps = sb3_evaluate_policy(
+            _Predictor(policy), self.env, self.episodes, return_episode_rewards=True
+        )
+        return EvaluationResult(np.asarray(rewards, dtype=float), np.asarray(steps))
+
+
+class _Predictor:
+    """A ``Policy`` as SB3's ``evaluate_policy`` calls a model."""
+
+    def __init__(self, policy: Policy) -> None:
+        self.policy = policy
+
+    def predict(self, observations, state=None, episode_start=None, deterministic=True):
+        return np.asarray(self.policy(observations, None)), None
+
+
 Task = MazeTask | CarTask | PlaceTask
+ORACLE_ENVS = (VisualMazeEnv, VisualMountainCarEnv, PlaceNavigationEnv)
+
+
+def has_oracle(env: gym.Env) -> bool:
+    """Whether ``task_for`` has a task with an oracle for ``env`` (a ``gym.make`` of it)."""
+    return isinstance(env.unwrapped, ORACLE_ENVS)
 
 
 def task_for(env_id: str, env_kwargs: dict | None = None, eval_starts: int = 100) -> Task | None:
-    """The task of an env with an oracle (None for any other env)."""
+    """The task of an env with an oracle (None for any other env: see ``EpisodeTask``)."""
     env = gym.make(env_id, **(env_kwargs or {})).unwrapped
     if isinstance(env, VisualMazeEnv):
         return MazeTask(env, eval_starts)

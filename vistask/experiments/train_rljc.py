@@ -156,7 +156,7 @@ def train_rljc(
         "evaluations": evaluations_of(evaluations),
     }
     task = scorer.task
-    if task is not None:
+    if task.oracle_return is not None:
         summary |= {
             "return_ratio": final_return / task.oracle_return,
             "oracle_return": task.oracle_return,

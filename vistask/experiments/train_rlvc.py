@@ -20,7 +20,6 @@ import numpy as np
 import torch
 from scipy.spatial import cKDTree
 from stable_baselines3.common.callbacks import BaseCallback
-from stable_baselines3.common.evaluation import evaluate_policy as sb3_evaluate_policy
 
 import vistask.envs  # noqa: F401  (registers the environments)
 from vistask.agents import RLVCAgent
@@ -30,7 +29,7 @@ from vistask.envs.car_plots import percepts_at, plot_car_policy, plot_road, stat
 from vistask.envs.maze_oracle import Policy
 from vistask.envs.maze_plots import percept_grid, plot_policy, plot_values
 from vistask.experiments.hyperparams import agent_kwargs, hyperparams_for
-from vistask.experiments.tasks import CarTask, MazeTask, Task, task_for
+from vistask.experiments.tasks import CarTask, EpisodeTask, MazeTask, Task, task_for
 from vistask.features import draw_compound
 from vistask.rlvc import InteractionDatabase, Transitions
 from vistask.rlvc.solver import estimate_mdp, value_iteration
@@ -105,21 +104,15 @@ class Scorer:
     over seeded episodes."""
 
     def __init__(self, env_id: str, env_kwargs: dict | None = None, episodes: int = EVAL_STARTS):
-        self.task = task_for(env_id, env_kwargs, episodes)
-        self.env, self.episodes = gym.make(env_id, **(env_kwargs or {})), episodes
-        self.oracle_return = None if self.task is None else self.task.oracle_return
+        self.task = task_for(env_id, env_kwargs, episodes) or EpisodeTask(
+            env_id, env_kwargs, episodes
+        )
+        self.oracle_return = self.task.oracle_return
         self.last_returns: np.ndarray | None = None
 
     def __call__(self, agent: VisualAgent) -> float:
-        """Mean discounted return of ``agent``'s greedy policy from the task's starts."""
-        if self.task is not None:
-            self.last_returns = self.task.evaluate(agent_policy(agent)).returns
-        else:
-            self.env.reset(seed=0)  # seeds the episodes that follow
-            rewards, _ = sb3_evaluate_policy(
-                agent, self.env, self.episodes, deterministic=True, return_episode_rewards=True
-            )
-            self.last_returns = np.asarray(rewards, dtype=float)
+        """Mean return of ``agent``'s greedy policy (see the class)."""
+        self.last_returns = self.task.evaluate(agent_policy(agent)).returns
         return float(self.last_returns.mean())
 
 
@@ -396,7 +389,7 @@ def train_rlvc(
         "evaluations": evaluations_of(evaluations),
     }
     task = scorer.task
-    if task is not None:
+    if task.oracle_return is not None:
         ceiling = true_grid_policy(task, agent.database)  # the agent's own interactions
         summary |= {
             "return_ratio": final_return / task.oracle_return,
