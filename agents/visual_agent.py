@@ -305,6 +305,13 @@ class VisualAgent(SB3Model):
                 "has the same value, so the greedy policy is arbitrary; collect more "
                 "interactions (total_timesteps) or check the env's rewards"
             )
+        elif self.learner.n_classes == 1:
+            warn(
+                f"one class after {len(self.database)} interactions: no feature's presence "
+                f"parted interactions of different values in at least min_count "
+                f"({self.min_count}) on each side, so the agent acts alike on every percept; "
+                "collect more interactions (total_timesteps)"
+            )
         return self
 
     def memory_needed_mb(self, total_timesteps: int) -> float:

@@ -276,3 +276,9 @@ def test_a_comparison_with_sb3_runs_on_an_env_without_an_oracle(tmp_path):
     assert "no oracle" in table and "| rlvc | 1.00 [" in table
     for picture in ("curves", "aggregates", "profiles", "wallclock"):
         assert (tmp_path / f"{picture}.png").stat().st_size > 0
+
+
+def test_learn_warns_when_a_budget_too_small_leaves_one_class():
+    with pytest.warns(UserWarning, match="one class after 16 interactions"):
+        agent = RLVCAgent(corridor(cells=6), n_words=64, n_envs=8).learn(16)
+    assert agent.rewards_seen > 0 and agent.rlvc.n_classes == 1
