@@ -156,8 +156,10 @@ class EpisodeTask:
     oracle_return = None
 
     def __init__(self, env_id: str, env_kwargs: dict | None = None, episodes: int = 100) -> None:
+        from stable_baselines3.common.monitor import Monitor
+
         check_at_least(1, episodes=episodes)
-        self.env = gym.make(env_id, **(env_kwargs or {}))
+        self.env = Monitor(gym.make(env_id, **(env_kwargs or {})))  # the episodes as they end
         self.episodes = episodes
 
     def evaluate(self, policy: Policy) -> EvaluationResult:
