@@ -33,12 +33,14 @@ from vistask.experiments.compare_results import (
     write_pictures,
 )
 from vistask.experiments.compare_runs import (
+    VISUAL_METHODS,
     RunResult,
     comparison_task,
     execute,
     merge_runs,
     run_specs,
     tabular_grid,
+    write_eval_log,
 )
 from vistask.experiments.comparison import Comparison
 from vistask.parallel import Outcome, cluster_address, map_runs, ray_session
@@ -155,6 +157,9 @@ def compare(
     results = sorted(merge_runs(units, config.budgets), key=lambda r: (order[r.method], r.seed))
     if not results:
         raise RuntimeError("every run failed:\n" + "\n".join(f["error"] for f in failed))
+    for result in results:
+        if result.method in VISUAL_METHODS:
+            write_eval_log(out / "tensorboard", result)
     methods = aggregate(results, config.budgets, oracle_return)
     for m in methods.values():
         m["curve"]["budgets"] = list(config.budgets)

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import functools
 import json
+import shutil
 import tempfile
 import time
 from collections.abc import Callable, Sequence
@@ -218,12 +219,15 @@ def run_method(
     def evaluate(policy: Policy) -> float:
         return task.evaluate(policy).mean
 
-    writer = tensorboard(tb_root / f"{method}-seed{seed}")
+    # A visual learner's budgets are runs of their own, which may end in any order:
+    # ``write_eval_log`` writes their points once they are all in.
+    writer = None if method in VISUAL_METHODS else tensorboard(tb_root / f"{method}-seed{seed}")
 
     def log(budget: int, value: float, seconds: float) -> None:
-        writer.add_scalar("eval/return", value, budget)
-        writer.add_scalar("eval/train_seconds", seconds, budget)
-        writer.flush()
+        if writer is not None:
+            writer.add_scalar("eval/return", value, budget)
+            writer.add_scalar("eval/train_seconds", seconds, budget)
+            writer.flush()
 
     t0, classes = time.perf_counter(), None
     if method in ("dqn", "ppo", "sac"):
@@ -235,13 +239,28 @@ def run_method(
         returns, at = run_tabular(config, seed, budgets, evaluate, log, task, spec.grid)
     else:
         returns, at = run_random(seed, budgets, evaluate, log, task)
-    writer.close()
+    if writer is not None:
+        writer.close()
     if len(returns) != len(budgets):
         raise RuntimeError(f"{method} produced {len(returns)} of {len(budgets)} returns")
     # A visual learner's budgets are separate agents; the others train one agent on.
     train = sum(at) if method in VISUAL_METHODS else at[-1]
     seconds = time.perf_counter() - t0
     return RunResult(method, seed, list(budgets), returns, train, seconds, classes, at)
+
+
+def write_eval_log(tb_root: Path, result: RunResult) -> None:
+    """``eval/return`` and ``eval/train_seconds`` of a visual learner's merged run against
+    interactions, in their order, to ``tb_root/<method>-seed<seed>`` (replacing it)."""
+    path = tb_root / f"{result.method}-seed{result.seed}"
+    shutil.rmtree(path, ignore_errors=True)
+    writer = tensorboard(path)
+    for budget, value, seconds in zip(
+        result.budgets, result.returns, result.seconds_at, strict=True
+    ):
+        writer.add_scalar("eval/return", value, budget)
+        writer.add_scalar("eval/train_seconds", seconds, budget)
+    writer.close()
 
 
 def comparison_task(config: Comparison) -> Task | EpisodeTask:
