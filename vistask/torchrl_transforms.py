@@ -57,11 +57,9 @@ class _ImageTransform(Transform):
     def _check_shape(self, shape: tuple) -> None:
         """Refuse images of another shape than the vocabulary was learned on."""
         vocabulary = self._vocabulary()
-        if vocabulary is not None and vocabulary.image_shape not in (None, shape):
-            raise ValueError(
-                f"{type(self).__name__}: the vocabulary was learned on images of shape "
-                f"{vocabulary.image_shape}; the images under {self.in_keys[0]!r} are {shape}"
-            )
+        if vocabulary is not None:
+            images = f"the images under {self.in_keys[0]!r}"
+            vocabulary.check_shape(shape, type(self).__name__, images)
 
     def _reset(self, tensordict, tensordict_reset):
         # Transform._reset passes resets through untouched; the first observation needs it too.

@@ -227,18 +227,25 @@ class VisualFeatureExtractor:
     def check_env(self, env: gym.Env, user: str) -> None:
         """Raise ValueError, naming ``user``, where ``env``'s observations are images of another
         shape than the vocabulary was fitted on; warn where ``env`` is another registered env."""
-        shape = tuple(getattr(env.observation_space, "shape", None) or ())
-        if self.image_shape is not None and shape != self.image_shape:
-            raise ValueError(
-                f"{user}: the vocabulary was learned on images of shape {self.image_shape}; "
-                f"this env's observations are {shape}"
-            )
+        self.check_shape(getattr(env.observation_space, "shape", None) or (), user)
         env_id = getattr(env.spec, "id", None)
         if None not in (self.env_id, env_id) and env_id != self.env_id:
             warnings.warn(
                 f"{user}: the vocabulary was learned on {self.env_id}'s images and wraps "
                 f"{env_id}: what it learned may not mean the same here",
                 stacklevel=3,
+            )
+
+    def check_shape(
+        self, shape: Sequence[int], user: str, images: str = "this env's observations"
+    ) -> None:
+        """Raise ValueError, naming ``user`` and the ``images``, where ``shape`` is not the shape
+        of the images the vocabulary was fitted on (nothing where that is not known)."""
+        shape = tuple(shape)
+        if self.image_shape is not None and shape != self.image_shape:
+            raise ValueError(
+                f"{user}: the vocabulary was learned on images of shape {self.image_shape}; "
+                f"{images} are {shape}"
             )
 
     @property
