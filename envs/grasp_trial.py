@@ -55,6 +55,7 @@ from vistask.checks import check_at_least, check_positive, checked
 from vistask.envs.objects import (
     DEFAULT_DISTRACTORS,
     MAX_DISTRACTORS,
+    NoRoomError,
     drop_pose,
     footprint_radius,
     named_object_spec,
@@ -89,6 +90,8 @@ from vistask.vision import (
 logging.getLogger("robosuite_logs").setLevel(logging.WARNING)
 
 PANDA_MAX_OPENING = 0.08  # metres between the fingertip pads, fully open
+PLACEMENT_DRAWS = 20
+"""Draws of distractors, turns and positions a reset makes before it gives up on room."""
 
 
 def check_grasp(grasp: Any, tolerance: float = 1e-3) -> np.ndarray:
@@ -349,16 +352,14 @@ class GraspTrialEnv(gym.Env):
         v = self._scene.qvel_addr[i]
         d.qvel[v : v + 6] = 0.0
 
-    def _place_objects(self) -> None:
+    def _draw_placement(self) -> tuple[list[int], list, list[np.ndarray]]:
+        """The objects on the table (the target first), their rotations and (x, y)
+        positions, apart from each other; NoRoomError where they find no room."""
         rng = self.np_random
-        kinds = self._scene.kinds
         active = [0]
         if self.n_distractors:
-            pool = rng.choice(len(kinds) - 1, self.n_distractors, replace=False)
+            pool = rng.choice(len(self._scene.kinds) - 1, self.n_distractors, replace=False)
             active += [1 + int(i) for i in pool]
-        for i in range(len(kinds)):
-            if i not in active:
-                self._set_object(i, self._parking[i], np.array([0.0, 0.0, 0.0, 1.0]))
         rots = [
             yaw_rotation(rng.uniform(0.0, 2 * math.pi))
             @ rest_rotation(self._scene.specs[i], rng, self.tip_probability)
@@ -366,7 +367,24 @@ class GraspTrialEnv(gym.Env):
         ]
         radii = [footprint_radius(self._bounds[i], r) for i, r in zip(active, rots, strict=True)]
         spans = [self.placement_range] + [0.25] * (len(active) - 1)
-        xys = place_apart(rng, radii, spans, gap=0.03)
+        return active, rots, place_apart(rng, radii, spans, gap=0.03)
+
+    def _place_objects(self) -> None:
+        # Other distractors, turned otherwise, may find room where the first drawn did not.
+        for attempt in range(PLACEMENT_DRAWS):
+            try:
+                active, rots, xys = self._draw_placement()
+                break
+            except NoRoomError as error:
+                if attempt == PLACEMENT_DRAWS - 1:
+                    raise NoRoomError(
+                        f"{self.object_kind} and {self.n_distractors} distractors found no "
+                        f"room on the table in {PLACEMENT_DRAWS} draws ({error}); lower "
+                        "n_distractors (--distractors) or make the object smaller"
+                    ) from None
+        for i in range(len(self._scene.kinds)):
+            if i not in active:
+                self._set_object(i, self._parking[i], np.array([0.0, 0.0, 0.0, 1.0]))
         for i, rot, xy in zip(active, rots, xys, strict=True):
             pose = drop_pose(self._bounds[i], rot, xy, TABLE_TOP_Z).numpy()
             self._set_object(i, pose[:3], pose[3:])

@@ -154,21 +154,22 @@ def pose_misfits(spec, conditions: tuple[str, ...] = ("upright", "lying")) -> di
 
 def warn_misfits(spec, tip_probability: float) -> None:
     """Warn when trials will place the object of ``spec`` in a pose no grasp can close across
-    (``pose_misfits``): standing as built, or (with ``tip_probability`` > 0) on some side."""
-    conditions = ("upright",) * (tip_probability < 1) + ("lying",) * (tip_probability > 0)
-    misfits = pose_misfits(spec, conditions)
-    if "upright" in misfits:
-        warnings.warn(
-            f"{spec.name} standing as built: no part fits the hand ({misfits['upright']}); "
-            "lay it on a side (tip_probability 1) or make it smaller",
-            stacklevel=2,
-        )
-    if spec.can_tip and "lying" in misfits:
-        warnings.warn(
-            f"{spec.name} on some sides: no part fits the hand ({misfits['lying']}); stand it "
-            "upright (tip_probability 0)",
-            stacklevel=2,
-        )
+    (``pose_misfits``): standing as built, or (with ``tip_probability`` > 0) on some side; the
+    warning says which resting pose fits, if any."""
+    misfits = pose_misfits(spec)
+    used = ("upright",) * (tip_probability < 1) + ("lying",) * (tip_probability > 0)
+    wrong = [c for c in used if c in misfits and (c == "upright" or spec.can_tip)]
+    if not wrong:
+        return
+    where = {"upright": "standing as built", "lying": "on some sides"}
+    why = "; ".join(f"{where[c]}, {misfits[c]}" for c in wrong)
+    if "upright" not in misfits:
+        advice = "stand it upright (tip_probability=0, --tip-probability 0)"
+    elif spec.can_tip and "lying" not in misfits:
+        advice = "lay it on a side (tip_probability=1, --tip-probability 1)"
+    else:
+        advice = "no resting pose fits: make it smaller, or it will not be grasped"
+    warnings.warn(f"{spec.name}: no part fits the hand ({why}): {advice}", stacklevel=2)
 
 
 def _projections(cells: np.ndarray) -> np.ndarray:

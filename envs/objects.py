@@ -252,7 +252,10 @@ def check_mjcf(path: Path, root: ElementTree.Element) -> None:
     if body.find(".//freejoint") is not None or any(
         joint.get("type") == "free" for joint in body.iter("joint")
     ):
-        raise ValueError(f"{path}: robosuite gives the object its free joint: remove the file's")
+        raise ValueError(
+            f"{path}: robosuite gives the object its free joint: remove the file's own "
+            "(<freejoint/> or a joint of type free)"
+        )
     for compiler in root.iter("compiler"):
         if compiler.get("angle", "radian") != "radian":
             raise ValueError(

@@ -2,6 +2,7 @@
 
     python scripts/bench_grasp_objects.py --out runs/grasp_objects          # every object
     python scripts/bench_grasp_objects.py --objects lemon can --trials 100  # some, shorter
+    python scripts/bench_grasp_objects.py --objects my.xml --trials 10 --eval-trials 10  # a try
     python scripts/bench_grasp_objects.py --address ray://head:10001 --workers 32
 
 Each object is learned on its own pose estimates (NBP, 2 distractors, seed 0) standing
@@ -22,6 +23,7 @@ from pathlib import Path
 os.environ.setdefault("MUJOCO_GL", "egl")
 
 from vistask.cli import positive_int, ray_address, run_main
+from vistask.envs.objects import distinct_object_specs
 from vistask.experiments.grasp_objects import bench_grasp_objects
 from vistask.runs import run_dir
 
@@ -30,17 +32,37 @@ def main() -> None:
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
-    parser.add_argument("--out", type=Path, default=None)
     parser.add_argument(
-        "--objects", nargs="+", default=None, help="default: every object that fits the hand"
+        "--out",
+        type=Path,
+        default=None,
+        help="output folder (default runs/bench_grasp_objects-<time>)",
     )
-    parser.add_argument("--trials", type=positive_int, default=300, help="learning trials")
+    parser.add_argument(
+        "--objects",
+        nargs="+",
+        default=None,
+        help="robosuite object classes or MJCF files (default: every object that fits the hand)",
+    )
+    parser.add_argument(
+        "--trials", type=positive_int, default=300, help="learning trials (at least 5: 5 cycles)"
+    )
+    parser.add_argument(
+        "--eval-trials",
+        type=positive_int,
+        default=100,
+        help="held-out placements each evaluation scores (4 evaluations a condition)",
+    )
     parser.add_argument("--workers", type=positive_int, default=2, help="simulators at once")
     parser.add_argument("--address", type=ray_address, default=None, help="a Ray cluster")
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args()
+    if args.objects:  # refused before the run folder is made
+        distinct_object_specs("objects", args.objects)
     out = run_dir("bench_grasp_objects", args.out)
-    bench_grasp_objects(out, args.objects, args.trials, args.seed, args.workers, args.address)
+    bench_grasp_objects(
+        out, args.objects, args.trials, args.seed, args.workers, args.address, args.eval_trials
+    )
 
 
 if __name__ == "__main__":

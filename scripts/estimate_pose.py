@@ -16,6 +16,7 @@ from pathlib import Path
 import torch
 
 from vistask.cli import non_negative_int, positive_int, run_main, torch_device
+from vistask.envs.objects import named_object_spec
 from vistask.experiments.pose import PoseBenchmark
 from vistask.experiments.pose_scenes import CONDITIONS
 from vistask.experiments.pose_summary import write_results
@@ -41,6 +42,7 @@ def main() -> None:
     )
     parser.add_argument("--pictures", type=non_negative_int, default=5, help="scenes drawn")
     args = parser.parse_args()
+    named_object_spec("object", args.object)  # refused before the run folder is made
     out = run_dir("estimate_pose", args.out)
     torch.set_num_threads(args.threads)
     bench = PoseBenchmark(

@@ -42,15 +42,28 @@ from vistask.runs import run_dir
 def main() -> None:
     defaults = {k: p.default for k, p in inspect.signature(GraspExperiment).parameters.items()}
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--out", type=Path, default=None)
+    parser.add_argument(
+        "--out", type=Path, default=None, help="output folder (default runs/learn_grasps-<time>)"
+    )
     parser.add_argument(
         "--resume",
         type=Path,
         default=None,
         help="a stopped run's folder: go on with its settings, after its last finished cycle",
     )
-    parser.add_argument("--objects", nargs="+", default=list(defaults["objects"]))
-    parser.add_argument("--hypothesis", choices=HYPOTHESES, default=defaults["hypothesis"])
+    parser.add_argument(
+        "--objects",
+        nargs="+",
+        default=list(defaults["objects"]),
+        help="robosuite object classes or presets (can, BreadObject) or MJCF files (my.xml)",
+    )
+    parser.add_argument(
+        "--hypothesis",
+        choices=HYPOTHESES,
+        default=defaults["hypothesis"],
+        help="where the first grasps come from: pairs of the object model's patches, or the "
+        "scripted teacher's grasps of its bounding box",
+    )
     parser.add_argument(
         "--pose-source",
         choices=POSE_SOURCES,
@@ -128,7 +141,6 @@ def main() -> None:
         settings = stopped_run_settings(parser, out, "config.json")
         experiment = GraspExperiment(**settings, **where)
     else:
-        out = run_dir("learn_grasps", args.out)
         experiment = GraspExperiment(
             objects=args.objects,
             hypothesis=args.hypothesis,
@@ -143,6 +155,7 @@ def main() -> None:
             seed=args.seed,
             **where,
         )
+        out = run_dir("learn_grasps", args.out)  # once the settings are known to be right
     interrupt_on_sigterm()
     summary = experiment.run(out)
     print(format_table(summary))

@@ -235,3 +235,27 @@ def test_a_round_object_stays_where_it_was_seen() -> None:
             assert np.degrees(turned.magnitude()) < 10
     finally:
         env.close()
+
+
+def test_a_reset_draws_the_scene_again_where_it_finds_no_room(env, monkeypatch) -> None:
+    import vistask.envs.grasp_trial as grasp_trial
+    from vistask.envs.objects import NoRoomError
+
+    place, calls = grasp_trial.place_apart, []
+
+    def crowded(*args, **kwargs):  # no room at the first draw of a reset, room at the next
+        calls.append(1)
+        if len(calls) == 1:
+            raise NoRoomError("no room")
+        return place(*args, **kwargs)
+
+    monkeypatch.setattr(grasp_trial, "place_apart", crowded)
+    _, info = env.reset(seed=3)
+    assert len(calls) == 2 and info["object_pose"][2] > 0
+
+    def full(*args, **kwargs):
+        raise NoRoomError("no room")
+
+    monkeypatch.setattr(grasp_trial, "place_apart", full)
+    with pytest.raises(NoRoomError, match=r"cube and 0 distractors .* \(--distractors\)"):
+        env.reset(seed=4)

@@ -59,11 +59,19 @@ def test_fingers_from_above_hold_no_ball_by_its_rounded_top_or_underside(monkeyp
     assert hand_fit.pose_misfit(*resting) is None
 
 
-def test_trials_in_a_pose_no_grasp_closes_across_are_warned_of() -> None:
-    with pytest.warns(UserWarning, match="box_object standing as built: no part fits"):
+def test_trials_in_a_pose_no_grasp_closes_across_are_warned_of(tmp_path) -> None:
+    with pytest.warns(UserWarning, match="box_object: .*standing as built.*lay it on a side"):
         warn_misfits(object_spec("BoxObject"), 0.0)
-    with pytest.warns(UserWarning, match="cereal on some sides: no part fits"):
+    with pytest.warns(UserWarning, match="cereal: .*on some sides.*stand it upright"):
         warn_misfits(object_spec("cereal"), 0.3)
+    big = tmp_path / "big.xml"  # a 30 cm cube: no side fits the hand
+    big.write_text(
+        '<mujoco model="big"><worldbody><body><body name="object">'
+        '<geom type="box" size="0.15 0.15 0.15" group="0"/></body></body></worldbody></mujoco>'
+    )
+    with pytest.warns(UserWarning, match="no resting pose fits: make it smaller") as found:
+        warn_misfits(object_spec(big), 0.3)
+    assert len(found) == 1  # one warning, not advice for each pose that contradicts the other
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         warn_misfits(object_spec("BoxObject"), 1.0)  # lying, it fits

@@ -63,6 +63,32 @@ def test_an_mjcf_file_robosuite_cannot_load_is_refused_naming_it(tmp_path) -> No
         object_spec(str(broken))
 
 
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["learn_grasps.py", "--objects"],
+        ["bench_grasp_objects.py", "--objects"],
+        ["estimate_pose.py", "--object"],
+    ],
+)
+def test_the_object_scripts_refuse_an_unusable_file_before_making_the_run_folder(
+    tmp_path, argv
+) -> None:
+    import subprocess
+    import sys
+
+    scripts, out = Path(__file__).parents[1] / "scripts", tmp_path / "run"
+    script, flag = argv
+    done = subprocess.run(
+        [sys.executable, str(scripts / script), flag, str(tmp_path / "mine.xml"), "--out", out],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert done.returncode == 2 and "no MJCF file at" in done.stderr and "mine.xml" in done.stderr
+    assert not out.exists()
+
+
 # The symmetries the shapes have, as judged by eye (the rotations that leave each unchanged):
 # the estimate from each model must find them, and no more turn of a shape that has none.
 Z, X = (0.0, 0.0, 1.0), (1.0, 0.0, 0.0)

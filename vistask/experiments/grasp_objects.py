@@ -157,11 +157,13 @@ def bench_grasp_objects(
     seed: int = 0,
     num_envs: int = 2,
     address: str | None = None,
+    eval_trials: int = 100,
 ) -> dict[str, Any]:
     """Learn and score grasps of ``objects`` (default: ``robosuite_objects()``) upright and
-    lying, ``trials`` learning trials each in 5 cycles; write ``out/summary.json`` (see
-    ``summarize``), ``out/success.png`` and print the table. An object is learned in the
-    conditions it fits the hand in (``pose_misfits``)."""
+    lying, ``trials`` learning trials each in 5 cycles, scored on ``eval_trials`` held-out
+    placements (four times: before and after learning, sampled and best of 10); write
+    ``out/summary.json`` (see ``summarize``), ``out/success.png`` and print the table. An
+    object is learned in the conditions it fits the hand in (``pose_misfits``)."""
     from vistask.envs.hand_fit import pose_misfits
     from vistask.envs.objects import object_spec
 
@@ -182,6 +184,7 @@ def bench_grasp_objects(
             objects=kinds,
             cycles=cycles,
             trials_per_cycle=trials // cycles,
+            eval_trials=eval_trials,
             tip_probability=tip,
             num_envs=num_envs,
             seed=seed,
