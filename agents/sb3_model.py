@@ -14,6 +14,18 @@ from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv
 from vistask.checks import checked
 
 
+class StageLogger(Logger):
+    """SB3's logger with one axis: once an agent sets ``stage``, every dump, an SB3
+    callback's own (``EvalCallback`` dumps at its interaction count) included, is written at
+    that stage."""
+
+    stage: int | None = None
+
+    def dump(self, step: int = 0) -> None:
+        """Write the pending records at ``stage``, or at ``step`` while it is None."""
+        super().dump(step if self.stage is None else self.stage)
+
+
 @checked
 class SB3Model:
     """Base of the agents: ``get_env``, ``get_vec_normalize_env`` and ``logger`` as SB3
@@ -37,11 +49,11 @@ class SB3Model:
         return None  # the agents read raw observations
 
     @property
-    def logger(self) -> Logger:
+    def logger(self) -> StageLogger:
         """SB3's logger of the current ``learn`` call (silent without ``tensorboard_log``)."""
         if self._logger is None:
             # SB3's configure_logger(0, None) would make an empty /tmp/SB3-<time> folder
-            self._logger = Logger(folder=None, output_formats=[])
+            self._logger = StageLogger(folder=None, output_formats=[])
         return self._logger
 
     def _start_learning(
@@ -57,9 +69,8 @@ class SB3Model:
             self.num_timesteps = 0
         self._logger = None  # no TensorBoard folder: the silent logger of ``logger``
         if self.tensorboard_log is not None:
-            self._logger = configure_logger(
-                0, self.tensorboard_log, tb_log_name, reset_num_timesteps
-            )
+            sb3 = configure_logger(0, self.tensorboard_log, tb_log_name, reset_num_timesteps)
+            self._logger = StageLogger(sb3.dir, sb3.output_formats)
 
         def convert(c: Any) -> BaseCallback:
             if not (isinstance(c, BaseCallback) or callable(c)):

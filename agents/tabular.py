@@ -34,7 +34,8 @@ class TabularQAgent(SB3Model):
         >>> agent.save("q.pt"); TabularQAgent.load("q.pt", env)
 
     Args:
-        env: environment with ``Discrete`` observation and action spaces.
+        env: environment with ``Discrete`` observation and action spaces (any ``start``: Q's
+            rows and columns count from it, ``predict`` returns the env's action ids).
         learning_rate: step size of the Q update.
         gamma: discount (default: ``env.unwrapped.gamma`` if the env exposes one, else 0.99).
         epsilon: exploration rate of the behaviour policy.
@@ -86,6 +87,10 @@ class TabularQAgent(SB3Model):
         self.learning_rate, self.epsilon, self.seed = learning_rate, epsilon, seed
         self.gamma = float(gamma)
         self.q = np.full((n_states, n_actions), float(initial_q))
+        # The first state and action ids (gymnasium's Discrete start): Q's row and column 0.
+        self.starts = (
+            (int(env.observation_space.start), int(env.action_space.start)) if env else (0, 0)
+        )
         self.num_timesteps = 0
         self._seeded = False
         self.rng = np.random.default_rng(seed)
@@ -123,7 +128,7 @@ class TabularQAgent(SB3Model):
         check_same_env(self.env_identity, self.env, learning=True)
         seeded = self._seeded  # the env is seeded once, at the agent's first step
         callback = self._start_learning(callback, tb_log_name, reset_num_timesteps)
-        env, q = self.env, self.q
+        env, q, (first_state, first_action) = self.env, self.q, self.starts
         end = self.num_timesteps + total_timesteps
         if self._resume_env_rng is not None:  # the episode a checkpoint stopped in, again
             env.unwrapped.np_random.bit_generator.state = self._resume_env_rng
@@ -139,9 +144,10 @@ class TabularQAgent(SB3Model):
                     action = int(self.rng.integers(q.shape[1]))
                 else:
                     action = self._greedy(obs)
-                next_obs, reward, terminated, truncated, _ = env.step(action)
-                target = reward + (0.0 if terminated else self.gamma * q[next_obs].max())
-                q[obs, action] += self.learning_rate * (target - q[obs, action])
+                next_obs, reward, terminated, truncated, _ = env.step(action + first_action)
+                row, next_row = obs - first_state, next_obs - first_state
+                target = reward + (0.0 if terminated else self.gamma * q[next_row].max())
+                q[row, action] += self.learning_rate * (target - q[row, action])
                 self.num_timesteps += 1
                 obs, episode_reward = next_obs, episode_reward + float(reward)
                 if terminated or truncated:
@@ -172,7 +178,8 @@ class TabularQAgent(SB3Model):
         }
 
     def _greedy(self, state: int) -> int:
-        row = self.q[state]
+        """The column of a greedy action in the env's ``state``."""
+        row = self.q[state - self.starts[0]]
         # Random tie-breaking: with an all-equal row, argmax would always pick action 0.
         return int(self.rng.choice(np.flatnonzero(row == row.max())))
 
@@ -181,13 +188,16 @@ class TabularQAgent(SB3Model):
         states = np.asarray(observation)
         if not np.issubdtype(states.dtype, np.integer):
             raise TypeError(f"state ids must be integers, got {observation!r}")
-        if states.min(initial=0) < 0 or states.max(initial=0) >= len(self.q):
-            raise ValueError(f"state ids must lie in 0..{len(self.q) - 1}, got {observation}")
-        actions = self.q[states.reshape(-1)].argmax(axis=1)
+        first_state, first_action = self.starts
+        rows = states - first_state
+        if rows.min(initial=0) < 0 or rows.max(initial=0) >= len(self.q):
+            last = first_state + len(self.q) - 1
+            raise ValueError(f"state ids must lie in {first_state}..{last}, got {observation}")
+        actions = self.q[rows.reshape(-1)].argmax(axis=1)
         if not deterministic:
             explore = self.rng.random(len(actions)) < self.epsilon
             actions[explore] = self.rng.integers(self.q.shape[1], size=int(explore.sum()))
-        return (actions.reshape(states.shape), None)
+        return (actions.reshape(states.shape) + first_action, None)
 
     def _state(self) -> dict:
         return {
@@ -199,6 +209,7 @@ class TabularQAgent(SB3Model):
             "num_timesteps": self.num_timesteps,
             "rng": self.rng.bit_generator.state,
             "env_identity": self.env_identity,
+            "starts": list(self.starts),
         }
 
     def save(self, path: str | Path) -> None:
@@ -223,14 +234,19 @@ class TabularQAgent(SB3Model):
             isinstance(space, gym.spaces.Discrete)
             for space in (env.observation_space, env.action_space)
         )
+        starts = tuple(state.get("starts", (0, 0)))  # files without them counted from 0
         if env is not None and (
-            not discrete or (env.observation_space.n, env.action_space.n) != q.shape
+            not discrete
+            or (env.observation_space.n, env.action_space.n) != q.shape
+            or (env.observation_space.start, env.action_space.start) != starts
         ):
             raise ValueError(
-                f"{path} holds Q for {q.shape[0]} states and {q.shape[1]} actions; the env has "
+                f"{path} holds Q for {q.shape[0]} states from id {starts[0]} and {q.shape[1]} "
+                f"actions from id {starts[1]}; the env has "
                 f"{env.observation_space} and {env.action_space}"
             )
         agent.env, agent.q, agent.num_timesteps = env, q, state["num_timesteps"]
+        agent.starts = starts
         agent.env_identity = state.get("env_identity")
         if env is not None:
             check_same_env(agent.env_identity, env, learning=False)

@@ -57,16 +57,18 @@ UNCAPPED_KEYPOINTS = 128  # keypoints counted per percept when max_keypoints is 
 def space_state(space: gym.spaces.Discrete | gym.spaces.Box) -> dict:
     """An action space as plain values for a saved file."""
     if isinstance(space, gym.spaces.Discrete):
-        return {"n": int(space.n)}
+        return {"n": int(space.n), "start": int(space.start)}
     return {"low": space.low.tolist(), "high": space.high.tolist(), "dtype": str(space.dtype)}
 
 
 def space_from_state(state: dict) -> gym.spaces.Discrete | gym.spaces.Box:
-    """The action space that ``space_state`` described."""
+    """The action space that ``space_state`` described (files without ``start`` start at 0)."""
     if "n" in state:
-        return gym.spaces.Discrete(state["n"])
+        return gym.spaces.Discrete(state["n"], start=state.get("start", 0))
     dtype = np.dtype(state["dtype"])
-    return gym.spaces.Box(np.array(state["low"], dtype), np.array(state["high"], dtype))
+    return gym.spaces.Box(
+        np.array(state["low"], dtype), np.array(state["high"], dtype), dtype=dtype
+    )
 
 
 @checked
@@ -279,6 +281,7 @@ class VisualAgent(SB3Model):
 
                 def on_stage(record: StageRecord) -> bool:
                     nonlocal stopped
+                    self.logger.stage = record.stage  # the step of every dump, callbacks' too
                     stopped = not callback.on_step()  # before the dump: its records join it
                     self._log_stage(record)
                     progress.show(stage=record.stage, classes=record.classes)

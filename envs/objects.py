@@ -9,8 +9,9 @@
   named in snake case, with ``_object`` where a preset has that name ("BoxObject" ->
   "box_object");
 - a MuJoCo XML file in robosuite's object format (``*.xml``): a ``<body name="object">``
-  holding the geoms, and the sites ``bottom_site``, ``top_site`` and
-  ``horizontal_radius_site`` next to it, as in robosuite's ``models/assets/objects``.
+  holding the geoms, as in robosuite's ``models/assets/objects`` (whose sites ``bottom_site``,
+  ``top_site`` and ``horizontal_radius_site`` are optional: objects are placed by the box
+  around their geoms).
 
 Objects that robosuite generates at random sizes (boxes, cylinders) are built with a fixed
 generator, so every process builds the same object. An object's symmetry is estimated from its

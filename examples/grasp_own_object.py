@@ -3,9 +3,9 @@
     MUJOCO_GL=egl python examples/grasp_own_object.py [trials_per_cycle]
 
 The object is an MJCF file in robosuite's object format: its geoms inside
-``<body name="object">`` (``group="0"``: robosuite keeps only those) and the sites
-``bottom_site``, ``top_site`` and ``horizontal_radius_site``. Here a block with a knob on
-top; write yours the same way.
+``<body name="object">`` (``group="0"``: robosuite keeps only those); the sites
+``bottom_site``, ``top_site`` and ``horizontal_radius_site`` of robosuite's own objects are
+optional. Here a block with a knob on top; write yours the same way.
 """
 
 import os

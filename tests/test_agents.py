@@ -269,6 +269,19 @@ def test_eval_callback_evaluates_the_agent_as_an_sb3_model(tmp_path, monkeypatch
     assert len(evaluations.evaluations_results) == len(agent.rlvc.history)
     assert all(len(rewards) == 3 for rewards in evaluations.evaluations_results)
     assert np.isfinite(evaluations.last_mean_reward)
+    # With TensorBoard, the callback's points lie on the run's axis, the stages, as the
+    # agent's own: EvalCallback dumps at its interaction count, which the run does not use.
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    every_third = EvalCallback(small_maze(), eval_freq=3, n_eval_episodes=2, verbose=0)
+    logged = RLVCAgent(small_maze(), n_words=256, seed=0, tensorboard_log=tmp_path / "tb")
+    logged.learn(1500, callback=every_third)
+    (events,) = (tmp_path / "tb").rglob("events.out.tfevents.*")
+    run = EventAccumulator(str(events)).Reload()
+    stages = [e.step for e in run.Scalars("rlvc/classes")]
+    assert stages == list(range(len(logged.rlvc.history)))  # the stages' indices, from 0
+    assert [e.step for e in run.Scalars("eval/mean_reward")] == stages[2::3]
+    assert {e.step for e in run.Scalars("rollout/ep_rew_mean")} <= set(stages)
 
 
 def test_predict_is_epsilon_greedy_when_not_deterministic(small_agent):
@@ -317,7 +330,15 @@ def test_train_rlvc_writes_a_summary_that_its_saved_agent_reproduces(tmp_path):
     )
     for picture in ("value_functions.png", "rlvc_policy.png", "oracle_policy.png"):
         assert (tmp_path / picture).stat().st_size > 0
-    assert any((tmp_path / "tensorboard").rglob("events.out.tfevents.*"))
+    # Fewer stages than between two evaluations: the learned agent is scored when learning ends.
+    assert summary["stages"] < 50
+    assert on_disk["evaluations"] == [[summary["stages"], summary["rlvc_return"]]]
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    (events,) = (tmp_path / "tensorboard").rglob("events.out.tfevents.*")
+    logged = EventAccumulator(str(events)).Reload().Scalars("eval/return")
+    last = summary["stages"] - 1  # the run's axis counts the stages from 0
+    assert [(e.step, e.value) for e in logged] == [(last, pytest.approx(summary["rlvc_return"]))]
     # The saved agent acts as the one that was scored, from the same starts.
     env = gym.make("vistask/VisualMaze-v0", **SMALL)
     agent = RLVCAgent.load(tmp_path / "rlvc_agent.pt", env)

@@ -79,13 +79,46 @@ def test_exploring_episodes_go_on_through_unchanged_views_with_max_blocked_0():
     assert kept > 2 * cut
 
 
-def test_actions_of_a_discrete_space_that_starts_at_1_are_the_envs():
+def test_actions_of_a_discrete_space_that_starts_at_1_are_the_envs(tmp_path):
     env = corridor(start=1, action_space=gym.spaces.Discrete(3, start=1))
     agent = RLVCAgent(env, **SMALL).learn(3000)
     views = np.stack([env.reset(seed=s)[0] for s in range(20)])
     assert set(agent.predict(views)[0].tolist()) <= {1, 2, 3}
     assert agent.predict(views[0], deterministic=False)[0] in {1, 2, 3}
     assert greedy_steps(agent, env) is not None
+    agent.save(tmp_path / "agent.pt")  # the start is kept: loaded, it acts with the env's ids
+    for loaded in (
+        RLVCAgent.load(tmp_path / "agent.pt"),
+        RLVCAgent.load(tmp_path / "agent.pt", env),
+    ):
+        assert loaded.action_space == env.action_space
+        assert np.array_equal(loaded.predict(views)[0], agent.predict(views)[0])
+
+
+def test_tabular_q_counts_states_and_actions_from_their_spaces_start(tmp_path):
+    from vistask.agents import TabularQAgent
+
+    class Chain(gym.Env):  # states 10..14, actions 1 (left) and 2 (right), the goal at 14
+        observation_space = gym.spaces.Discrete(5, start=10)
+        action_space = gym.spaces.Discrete(2, start=1)
+
+        def reset(self, *, seed=None, options=None):
+            super().reset(seed=seed)
+            self.state = 10
+            return self.state, {}
+
+        def step(self, action):
+            assert self.action_space.contains(action), action
+            self.state = int(np.clip(self.state + (1 if action == 2 else -1), 10, 14))
+            return self.state, float(self.state == 14), self.state == 14, False, {}
+
+    env = gym.wrappers.TimeLimit(Chain(), 30)
+    agent = TabularQAgent(env, seed=0).learn(3000)
+    assert agent.predict(np.arange(10, 14))[0].tolist() == [2, 2, 2, 2]
+    agent.save(tmp_path / "q.pt")
+    assert TabularQAgent.load(tmp_path / "q.pt", env).predict(12)[0] == 2
+    with pytest.raises(ValueError, match="states from id 10 and 2 actions from id 1"):
+        TabularQAgent.load(tmp_path / "q.pt", gym.make("FrozenLake-v1"))
 
 
 @pytest.mark.parametrize(
@@ -194,6 +227,16 @@ def test_a_discount_attribute_out_of_range_is_named_as_the_envs():
     assert RLVCAgent(env, gamma=0.9).gamma == 0.9
 
 
+def test_rljc_on_float64_actions_loads_and_acts_in_float64(tmp_path):
+    env = corridor(action_space=gym.spaces.Box(-1, 1, (1,), np.float64))
+    agent = RLJCAgent(env, **SMALL).learn(1500)
+    agent.save(tmp_path / "rljc.pt")
+    view = env.reset(seed=1)[0]
+    for loaded in (RLJCAgent.load(tmp_path / "rljc.pt"), RLJCAgent.load(tmp_path / "rljc.pt", env)):
+        assert loaded.action_space == env.action_space
+        assert loaded.predict(view)[0].dtype == np.float64
+
+
 def test_joint_classes_refuse_an_env_with_other_action_bounds():
     learned = corridor(action_space=gym.spaces.Box(-1, 1, (1,), np.float32))
     agent = RLJCAgent(learned, **SMALL).learn(1500)
@@ -204,9 +247,21 @@ def test_joint_classes_refuse_an_env_with_other_action_bounds():
 
 
 def test_a_vector_env_is_refused_saying_that_the_agent_makes_its_own_copies():
-    vector = gym.vector.SyncVectorEnv([corridor, corridor])
-    with pytest.raises(TypeError, match="a vector env: pass one env, of which agents run n_envs"):
-        RLVCAgent(vector)
+    from stable_baselines3.common.vec_env import DummyVecEnv
+
+    for vector in (gym.vector.SyncVectorEnv([corridor, corridor]), DummyVecEnv([corridor])):
+        with pytest.raises(TypeError, match="a vector env: pass one env, of which agents run"):
+            RLVCAgent(vector)
+
+
+def test_observations_that_hold_an_image_are_told_how_to_keep_it_alone():
+    env = Corridor()
+    image = env.observation_space
+    env.observation_space = gym.spaces.Dict({"direction": gym.spaces.Discrete(4), "image": image})
+    with pytest.raises(TypeError, match=r"TransformObservation\(env, lambda o: o\['image'\]"):
+        RLVCAgent(env)
+    kept = gym.wrappers.TransformObservation(env, lambda o: o["image"], image)
+    RLVCAgent(kept, **SMALL)  # the hint's wrapper is accepted
 
 
 class Wide(Corridor):

@@ -114,3 +114,26 @@ def test_compounds_follow_the_words_in_the_wrapper_and_the_transform(agent):
     assert reset["features"].shape == (n + 4,)
     expected = wrapper.observation(reset["pixels"].numpy())
     np.testing.assert_array_equal(reset["features"].numpy(), expected)
+
+
+def test_grey_images_go_through_the_transforms_under_the_key_torchrl_keeps_them(agent):
+    from torchrl.envs import GymWrapper
+
+    def grey():
+        return gym.wrappers.GrayscaleObservation(gym.make(ENV_ID, **SMALL))
+
+    learned = RLVCAgent(grey(), n_words=128, seed=0).learn(2000, progress_bar=False)
+    with pytest.raises(KeyError, match=r"no 'pixels' among .*'observation'.*pass in_key="):
+        TransformedEnv(GymWrapper(grey()), VisualClassTransform(learned.classifier)).rollout(2)
+    env = TransformedEnv(
+        GymWrapper(grey()), VisualClassTransform(learned.classifier, in_key="observation")
+    )
+    check_env_specs(env, seed=0)
+    rollout = env.rollout(20)
+    wrapper = VisualClasses(grey(), learned.classifier)
+    expected = [wrapper.observation(image) for image in rollout["next", "observation"].numpy()]
+    assert rollout["next", "visual_class"].tolist() == expected
+    with pytest.raises(ValueError, match=r"learned on images of shape \(64, 64\)"):
+        VisualClassTransform(learned.classifier, in_key="observation")._apply_transform(
+            torch.zeros(2, 48, 48, dtype=torch.uint8)
+        )

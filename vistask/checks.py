@@ -152,7 +152,8 @@ def _annotation_check(annotation: object, namespace: dict) -> Callable[[str, obj
     def check(name: str, value: object) -> None:
         if not any(test(value) for _, test in tests):
             shown = repr(value) if len(repr(value)) < 80 else f"a {type(value).__name__}"
-            if hasattr(value, "single_observation_space"):  # a Gymnasium vector env
+            # A Gymnasium vector env, or SB3's VecEnv.
+            if hasattr(value, "single_observation_space") or hasattr(value, "num_envs"):
                 shown += " (a vector env: pass one env, of which agents run n_envs copies)"
             raise TypeError(f"{name} must be {accepted}, got {shown}")
         if finite_only and isinstance(value, numbers.Real) and not math.isfinite(value):

@@ -1,7 +1,8 @@
 """torchrl transforms: image observation -> visual features, image -> visual class.
 
 The torchrl counterparts of ``vistask.wrappers.VisualFeatures`` and ``VisualClasses``, for a
-``torchrl.envs.GymEnv`` whose Box image observation torchrl stores under ``"pixels"``.
+``torchrl.envs.GymEnv`` whose Box image observation torchrl stores under ``"pixels"`` (RGB) or
+``"observation"`` (grey: pass ``in_key="observation"``).
 
 Example:
     >>> from torchrl.envs import GymEnv, TransformedEnv
@@ -25,20 +26,21 @@ from vistask.features import Compound, VisualFeatureExtractor
 from vistask.wrappers import Classifier
 
 
-def _images(pixels: torch.Tensor) -> tuple[list[np.ndarray], torch.Size]:
-    """(..., H, W, 3) uint8 tensor -> list of (H, W, 3) arrays and the leading batch shape."""
-    if pixels.ndim < 3 or pixels.shape[-1] != 3 or pixels.dtype != torch.uint8:
-        raise ValueError(
-            f"expected (..., H, W, 3) uint8 images, got {tuple(pixels.shape)} {pixels.dtype}"
-        )
-    batch = pixels.shape[:-3]
-    flat = pixels.reshape(-1, *pixels.shape[-3:]).cpu().numpy()
+def _images(pixels: torch.Tensor, dims: int) -> tuple[list[np.ndarray], torch.Size]:
+    """(..., H, W, 3) (``dims`` 3) or (..., H, W) grey (``dims`` 2) uint8 tensor -> list of
+    (H, W, 3) or (H, W) arrays and the leading batch shape."""
+    image = "(..., H, W, 3)" if dims == 3 else "(..., H, W)"
+    if pixels.ndim < dims or (dims == 3 and pixels.shape[-1] != 3) or pixels.dtype != torch.uint8:
+        raise ValueError(f"expected {image} uint8 images, got {tuple(pixels.shape)} {pixels.dtype}")
+    batch = pixels.shape[:-dims]
+    flat = pixels.reshape(-1, *pixels.shape[-dims:]).cpu().numpy()
     return list(flat), batch
 
 
 class _ImageTransform(Transform):
-    """Maps ``in_key`` images to ``out_key`` after every step and reset; the spec of
-    ``out_key`` is ``self._spec(device)`` (per observation, without batch dims)."""
+    """Maps ``in_key`` images, RGB or grey as the vocabulary's, to ``out_key`` after every
+    step and reset; the spec of ``out_key`` is ``self._spec(device)`` (per observation,
+    without batch dims)."""
 
     def __init__(self, in_key: str, out_key: str) -> None:
         super().__init__(in_keys=[in_key], out_keys=[out_key])
@@ -49,9 +51,18 @@ class _ImageTransform(Transform):
     def _vocabulary(self) -> VisualFeatureExtractor | None:
         raise NotImplementedError
 
+    def _image_dims(self, shape: tuple) -> int:
+        """3 for (H, W, 3) images, 2 for grey (H, W) ones: as the vocabulary was learned on,
+        else as ``shape`` (the observation's, batch dims first) ends."""
+        vocabulary = self._vocabulary()
+        if vocabulary is not None and vocabulary.image_shape is not None:
+            return len(vocabulary.image_shape)
+        return 3 if shape[-1:] == (3,) else 2
+
     def _images(self, pixels: torch.Tensor) -> tuple[list[np.ndarray], torch.Size]:
-        images = _images(pixels)
-        self._check_shape(tuple(pixels.shape[-3:]))
+        dims = self._image_dims(tuple(pixels.shape))
+        images = _images(pixels, dims)
+        self._check_shape(tuple(pixels.shape[-dims:]))
         return images
 
     def _check_shape(self, shape: tuple) -> None:
@@ -61,19 +72,41 @@ class _ImageTransform(Transform):
             images = f"the images under {self.in_keys[0]!r}"
             vocabulary.check_shape(shape, type(self).__name__, images)
 
+    def _check_key(self, keys) -> None:
+        """Refuse observations (``keys``) without the images' key, naming theirs."""
+        if self.in_keys[0] not in keys:
+            # torchrl's GymEnv keeps RGB image observations under "pixels", others (a grey
+            # image) under "observation".
+            raise KeyError(
+                f"{type(self).__name__}: no {self.in_keys[0]!r} among the env's observations "
+                f"{sorted(k for k in keys if isinstance(k, str))}: pass in_key= the one of "
+                "the images"
+            )
+
+    def _call(self, tensordict):
+        self._check_key(tensordict.keys())
+        return super()._call(tensordict)
+
     def _reset(self, tensordict, tensordict_reset):
         # Transform._reset passes resets through untouched; the first observation needs it too.
         return self._call(tensordict_reset)
 
     def transform_observation_spec(self, observation_spec: Composite) -> Composite:
-        image_spec = observation_spec[self.in_keys[0]]
-        if image_spec.shape[-1:] != (3,) or image_spec.dtype != torch.uint8:
+        key = self.in_keys[0]
+        self._check_key(observation_spec.keys())
+        image_spec = observation_spec[key]
+        dims = self._image_dims(tuple(image_spec.shape))
+        if (
+            len(image_spec.shape) < dims
+            or image_spec.dtype != torch.uint8
+            or (dims == 3 and image_spec.shape[-1] != 3)
+        ):
+            image = "(H, W, 3)" if dims == 3 else "(H, W)"
             raise ValueError(
-                f"{type(self).__name__} needs (H, W, 3) uint8 images under "
-                f"{self.in_keys[0]!r}, got {image_spec}"
+                f"{type(self).__name__} needs {image} uint8 images under {key!r}, got {image_spec}"
             )
-        self._check_shape(tuple(image_spec.shape[-3:]))
-        batch = image_spec.shape[:-3]
+        self._check_shape(tuple(image_spec.shape[-dims:]))
+        batch = image_spec.shape[:-dims]
         spec = self._spec(image_spec.device)
         observation_spec[self.out_keys[0]] = spec.expand(*batch, *spec.shape)
         return observation_spec
@@ -86,7 +119,8 @@ class VisualFeatureTransform(_ImageTransform):
 
     Args:
         extractor: the visual feature extractor (vocabulary).
-        in_key: key of the (..., H, W, 3) uint8 images.
+        in_key: key of the (..., H, W, 3) or grey (..., H, W) uint8 images (torchrl's
+            ``GymEnv`` keeps RGB images under "pixels", grey ones under "observation").
         out_key: key of the (..., F + C) int8 presence vectors.
         compounds: compounds learned on this extractor's words (``RLVC.compounds``).
     """
@@ -123,7 +157,8 @@ class VisualClassTransform(_ImageTransform):
     Args:
         classifier: image -> class with ``n_classes`` (``RLVCAgent.classifier``); its batched
             ``classify(images)`` is used when present.
-        in_key: key of the (..., H, W, 3) uint8 images.
+        in_key: key of the (..., H, W, 3) or grey (..., H, W) uint8 images (torchrl's
+            ``GymEnv`` keeps RGB images under "pixels", grey ones under "observation").
         out_key: key of the (...,) int64 class ids.
     """
 

@@ -136,7 +136,7 @@ def train_rljc(
     evaluations = EvaluateEvery(scorer)
     agent, before = learn_resumable(agent, interactions, out, evaluations, progress)
     learned = time.perf_counter()
-    final_return = scorer(agent)
+    final_return = evaluations.final
     agent.save(out / "rljc_agent.pt")
 
     rljc, tree = agent.rljc, agent.rljc.structure

@@ -118,8 +118,8 @@ class Scorer:
 
 class EvaluateEvery(BaseCallback):
     """Scores the greedy policy every ``every`` stages (counted over the whole run, a resumed
-    one included) and logs ``eval/return`` (and ``eval/return_ratio`` against the oracle) to
-    the agent's TensorBoard run.
+    one included) and once more when learning ends (``final``), and logs ``eval/return`` (and
+    ``eval/return_ratio`` against the oracle) to the agent's TensorBoard run.
 
     Args:
         scorer: scores an agent's greedy policy.
@@ -136,16 +136,30 @@ class EvaluateEvery(BaseCallback):
     def _on_step(self) -> bool:
         stage = len(self.model.learner.history)
         if stage % self.every == 0:
-            start = time.perf_counter()
-            value = self.scorer(self.model)
-            self.seconds += time.perf_counter() - start
-            self.evaluations.append((stage, value))
-            if self.record is not None:
-                append_record(self.record, {"stage": stage, "return": value})
-            self.logger.record("eval/return", value)
-            if self.scorer.oracle_return:
-                self.logger.record("eval/return_ratio", value / self.scorer.oracle_return)
+            self._evaluate(stage)
         return True
+
+    def _on_training_end(self) -> None:
+        # The learned agent, after the classes' last change (compaction's regrowing, the
+        # structures' committee): a run of fewer stages than ``every`` is scored too.
+        self._evaluate(len(self.model.learner.history))
+        self.logger.dump()  # at the last stage, as every point of the agent's run
+
+    @property
+    def final(self) -> float:
+        """The score of the agent as learning left it."""
+        return self.evaluations[-1][1]
+
+    def _evaluate(self, stage: int) -> None:
+        start = time.perf_counter()
+        value = self.scorer(self.model)
+        self.seconds += time.perf_counter() - start
+        self.evaluations.append((stage, value))
+        if self.record is not None:
+            append_record(self.record, {"stage": stage, "return": value})
+        self.logger.record("eval/return", value)
+        if self.scorer.oracle_return:
+            self.logger.record("eval/return_ratio", value / self.scorer.oracle_return)
 
 
 def classes_and_actions(agent: RLVCAgent, images: list[np.ndarray]) -> np.ndarray:
@@ -365,7 +379,7 @@ def train_rlvc(
     evaluations = EvaluateEvery(scorer)
     agent, before = learn_resumable(agent, interactions, out, evaluations, progress)
     learned = time.perf_counter()
-    final_return = scorer(agent)
+    final_return = evaluations.final
     agent.save(out / "rlvc_agent.pt")
 
     rlvc = agent.rlvc

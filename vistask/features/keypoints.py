@@ -76,6 +76,14 @@ def _image_hint(space) -> str:
     from gymnasium import spaces
 
     shape = tuple(getattr(space, "shape", None) or ())
+    if isinstance(space, spaces.Dict):
+        images = [k for k, s in space.spaces.items() if isinstance(s, spaces.Box) and s.shape]
+        if images:  # observations that hold an image: keep it alone
+            k = images[0]
+            return (
+                f"keep the image alone: gymnasium.wrappers.TransformObservation(env, "
+                f"lambda o: o[{k!r}], env.observation_space[{k!r}])"
+            )
     if not isinstance(space, spaces.Box) or len(shape) not in (2, 3):
         return "render an env to pixels with gymnasium.wrappers.AddRenderObservation"
 
