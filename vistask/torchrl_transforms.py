@@ -26,12 +26,17 @@ from vistask.features import Compound, VisualFeatureExtractor
 from vistask.wrappers import Classifier
 
 
+def _check_images(shape: Sequence[int], dtype: torch.dtype, dims: int, what: str) -> None:
+    """Refuse what is not (..., H, W, 3) (``dims`` 3) or grey (..., H, W) (``dims`` 2)
+    uint8 images, naming ``what``."""
+    if len(shape) < dims or dtype != torch.uint8 or (dims == 3 and shape[-1] != 3):
+        image = "(..., H, W, 3)" if dims == 3 else "(..., H, W)"
+        raise ValueError(f"{what} needs {image} uint8 images, got {tuple(shape)} {dtype}")
+
+
 def _images(pixels: torch.Tensor, dims: int) -> tuple[list[np.ndarray], torch.Size]:
     """(..., H, W, 3) (``dims`` 3) or (..., H, W) grey (``dims`` 2) uint8 tensor -> list of
     (H, W, 3) or (H, W) arrays and the leading batch shape."""
-    image = "(..., H, W, 3)" if dims == 3 else "(..., H, W)"
-    if pixels.ndim < dims or (dims == 3 and pixels.shape[-1] != 3) or pixels.dtype != torch.uint8:
-        raise ValueError(f"expected {image} uint8 images, got {tuple(pixels.shape)} {pixels.dtype}")
     batch = pixels.shape[:-dims]
     flat = pixels.reshape(-1, *pixels.shape[-dims:]).cpu().numpy()
     return list(flat), batch
@@ -61,9 +66,9 @@ class _ImageTransform(Transform):
 
     def _images(self, pixels: torch.Tensor) -> tuple[list[np.ndarray], torch.Size]:
         dims = self._image_dims(tuple(pixels.shape))
-        images = _images(pixels, dims)
+        _check_images(pixels.shape, pixels.dtype, dims, type(self).__name__)
         self._check_shape(tuple(pixels.shape[-dims:]))
-        return images
+        return _images(pixels, dims)
 
     def _check_shape(self, shape: tuple) -> None:
         """Refuse images of another shape than the vocabulary was learned on."""
@@ -96,15 +101,8 @@ class _ImageTransform(Transform):
         self._check_key(observation_spec.keys())
         image_spec = observation_spec[key]
         dims = self._image_dims(tuple(image_spec.shape))
-        if (
-            len(image_spec.shape) < dims
-            or image_spec.dtype != torch.uint8
-            or (dims == 3 and image_spec.shape[-1] != 3)
-        ):
-            image = "(H, W, 3)" if dims == 3 else "(H, W)"
-            raise ValueError(
-                f"{type(self).__name__} needs {image} uint8 images under {key!r}, got {image_spec}"
-            )
+        what = f"{type(self).__name__} (under {key!r})"
+        _check_images(image_spec.shape, image_spec.dtype, dims, what)
         self._check_shape(tuple(image_spec.shape[-dims:]))
         batch = image_spec.shape[:-dims]
         spec = self._spec(image_spec.device)
