@@ -320,7 +320,11 @@ class VisualAgent(SB3Model):
     def memory_needed_mb(self, total_timesteps: int) -> float:
         """About how many MB of memory ``learn(total_timesteps)`` takes at its peak beyond what
         the process holds before it: the databases (joined with the earlier ones), one chunk
-        of images, the vocabulary's descriptors and the split search's tables."""
+        of images, the vocabulary's descriptors and the split search's tables.
+
+        Raises:
+            ValueError: total_timesteps below 1."""
+        check_at_least(1, total_timesteps=total_timesteps)
         keypoints = self.max_keypoints or UNCAPPED_KEYPOINTS
         interactions = self.num_timesteps + total_timesteps
         per_interaction = (

@@ -345,3 +345,18 @@ def test_a_resumed_train_rlvc_keeps_the_evaluations_and_seconds_of_its_stopped_p
     assert resumed["rlvc_return"] == straight["rlvc_return"]
     assert resumed["learn_seconds"] > before > 0
     assert not (tmp_path / "stopped" / "elapsed.json").exists()
+
+    # Stopped after learning, while the learned agent is saved: it goes on from the last
+    # database's checkpoint, not from the start, and ends as the run straight through.
+    def stop_while_saving(self, path):
+        raise KeyboardInterrupt
+
+    with monkeypatch.context() as patch:
+        patch.setattr(module.RLVCAgent, "save", stop_while_saving)
+        with pytest.raises(KeyboardInterrupt):
+            module.train_rlvc(**run, out=tmp_path / "late")
+    assert (tmp_path / "late" / "checkpoint.pt").exists()
+    late = module.train_rlvc(**run, out=tmp_path / "late")
+    assert late["evaluations"] == straight["evaluations"]
+    assert late["rlvc_return"] == straight["rlvc_return"] and late["stages"] == straight["stages"]
+    assert not (tmp_path / "late" / "checkpoint.pt").exists()

@@ -33,6 +33,26 @@ def test_the_estimate_grows_with_the_run_and_a_run_that_would_not_fit_is_refused
     with pytest.raises(MemoryError, match=r"learn\(400000\) would need about \d+ MB"):
         agent.learn(400_000)
     assert agent.num_timesteps == 0  # refused before collecting
+    with pytest.raises(ValueError, match="total_timesteps must be >= 1"):
+        agent.memory_needed_mb(-5)
+
+
+def test_a_run_folder_that_cannot_be_made_is_refused_naming_it(tmp_path):
+    from vistask.runs import run_dir
+
+    (tmp_path / "file").write_text("")
+    for out in (tmp_path / "file" / "run", "/proc/no-run-here"):
+        with pytest.raises(ValueError, match=r"out: cannot make the run folder .*run"):
+            run_dir("bench_scale", out)
+
+
+def test_bench_scale_ends_with_the_error_of_a_run_that_would_not_fit(tmp_path):
+    from vistask.parallel import RunsFailed
+
+    budgets = {"vistask/VisualMaze-v0": [10**9]}
+    with pytest.raises(RunsFailed, match=r"every run failed: .* at 1000000000: MemoryError: "):
+        bench_scale(["vistask/VisualMaze-v0"], budgets, out=tmp_path)
+    assert not (tmp_path / "summary.json").exists()
 
 
 def test_growth_exponent_of_a_power_law():

@@ -62,6 +62,12 @@ def test_map_runs_reports_failures_and_finishes_the_rest_wherever_it_runs():
         assert not by_item["[1,"].ok and "JSONDecodeError" in by_item["[1,"].error
 
 
+def test_a_cluster_that_does_not_answer_is_refused_at_once(monkeypatch):
+    monkeypatch.setenv("RAY_ADDRESS", "127.0.0.1:1")  # as a script's --address is checked
+    with pytest.raises(ValueError, match=r"RAY_ADDRESS\): cannot reach 127\.0\.0\.1:1"):
+        map_runs(json.loads, ["4"], 2)
+
+
 @pytest.mark.parametrize("runs", [2, 3, 5, 8, 11])
 def test_numpy_statistics_equal_rliables(runs):
     from rliable import metrics

@@ -8,7 +8,6 @@ import json
 import math
 import os
 import signal
-import socket
 import sys
 from collections.abc import Callable
 from pathlib import Path
@@ -16,6 +15,7 @@ from pathlib import Path
 import gymnasium as gym
 
 from vistask.checks import check_device
+from vistask.parallel import RunsFailed, unreachable
 
 
 def _checked(text: str, convert: Callable[[str], float], ok: Callable, accepted: str):
@@ -119,10 +119,9 @@ def ray_address(text: str) -> str:
         raise argparse.ArgumentTypeError(
             f"must be 'local', 'auto' or [ray://]host:port, got {text}"
         )
-    try:
-        socket.create_connection((host, int(port)), timeout=5).close()
-    except OSError as error:
-        raise argparse.ArgumentTypeError(f"cannot reach {text} ({error})") from None
+    why = unreachable(text)
+    if why is not None:
+        raise argparse.ArgumentTypeError(why)
     return text
 
 
@@ -130,17 +129,18 @@ def run_main(main: Callable[[], object]) -> None:
     """Run a script's ``main``; an input refused on the way (``ValueError``, ``TypeError``,
     ``FileNotFoundError``, a gymnasium error, a module named in an env id that does not
     import: ``ModuleNotFoundError``) or a run that would not fit in memory
-    (``MemoryError``) ends it with one line, as argparse's errors do (exit status 2).
+    (``MemoryError``) ends it with one line, as argparse's errors do (exit status 2); runs
+    that failed (``RunsFailed``) end it with their errors' last lines (exit status 1).
     ``VISTASK_TRACEBACK=1`` shows the traceback instead."""
     refused = (ValueError, TypeError, FileNotFoundError, ModuleNotFoundError, MemoryError)
     try:
         main()
-    except (*refused, gym.error.Error) as error:
+    except (*refused, gym.error.Error, RunsFailed) as error:
         if os.environ.get("VISTASK_TRACEBACK"):
             raise
         print(f"{Path(sys.argv[0]).name}: error: {error}", file=sys.stderr)
         print("(VISTASK_TRACEBACK=1 shows where it was raised)", file=sys.stderr)
-        sys.exit(2)
+        sys.exit(1 if isinstance(error, RunsFailed) else 2)
 
 
 def check_resume_alone(

@@ -55,6 +55,16 @@ class Outcome:
         return self.error is None
 
 
+class RunsFailed(RuntimeError):
+    """Runs of a script failed: its message gives each one's last error line."""
+
+
+def last_line(error: str) -> str:
+    """The last non-empty line of a traceback text (the exception and its message)."""
+    lines = [line for line in error.strip().splitlines() if line.strip()]
+    return lines[-1] if lines else error
+
+
 def cluster_address(address: str | None = None) -> str | None:
     """``address`` if given, else ``RAY_ADDRESS`` from the environment (None: no cluster;
     ``"local"``: a Ray started on this machine)."""
@@ -109,6 +119,21 @@ def worker_threads() -> Iterator[None]:
             os.environ["OMP_NUM_THREADS"] = saved[2]
 
 
+def unreachable(address: str) -> str | None:
+    """Why the Ray cluster at ``[ray://]host:port`` ``address`` cannot be reached (no answer
+    within 5 s), or None when it answers or ``address`` is not host:port."""
+    import socket
+
+    host, _, port = address.removeprefix("ray://").rpartition(":")
+    if not host or not port.isdigit():
+        return None
+    try:
+        socket.create_connection((host, int(port)), timeout=5).close()
+    except OSError as error:
+        return f"cannot reach {address} ({error})"
+    return None
+
+
 @contextmanager
 def ray_session(workers: int | None = None, address: str | None = None) -> Iterator[Any]:
     """The ``ray`` module, initialised: connected to the cluster at ``address`` (or
@@ -130,7 +155,16 @@ def ray_session(workers: int | None = None, address: str | None = None) -> Itera
             configure_logging=False,
         )
     else:
-        ray.init(address=address, configure_logging=False)
+        # Ray retries an address that does not answer for minutes (RAY_ADDRESS is not
+        # checked as --address is): refuse it at once.
+        why = unreachable(address)
+        if why is None:
+            try:
+                ray.init(address=address, configure_logging=False)
+            except ConnectionError as error:  # "auto" with no cluster running here
+                why = str(error).splitlines()[0]
+        if why is not None:
+            raise ValueError(f"Ray cluster (--address or RAY_ADDRESS): {why}")
     try:
         yield ray
     finally:

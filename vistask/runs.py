@@ -23,7 +23,10 @@ def run_dir(script: str, out: str | Path | None = None) -> Path:
     path = Path(out) if out else Path("runs") / f"{script}-{time.strftime('%Y%m%d-%H%M%S')}"
     if path.exists() and not path.is_dir():
         raise ValueError(f"out: {path} is a file, not a folder for the run")
-    path.mkdir(parents=True, exist_ok=True)
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as error:  # read-only, not permitted, a file on the way
+        raise ValueError(f"out: cannot make the run folder {path}: {error.strerror}") from None
     record = path / "run.json"
     run = read_json(record) if record.exists() else {"script": script, "commands": []}
     if run.get("script") != script:

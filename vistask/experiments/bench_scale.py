@@ -27,7 +27,7 @@ from vistask.experiments.hyperparams import agent_kwargs, hyperparams_for
 from vistask.experiments.tasks import task_for
 from vistask.experiments.train_rlvc import agent_policy
 from vistask.memory import PeakMemory
-from vistask.parallel import map_runs
+from vistask.parallel import RunsFailed, last_line, map_runs
 from vistask.rlvc import collect
 from vistask.runs import append_record, check_same_settings, read_records, run_dir, write_summary
 
@@ -140,15 +140,20 @@ def bench_scale(
     done = {(r["env_id"], r["budget"]): r for r in read_records(out / "runs.jsonl")}
     items = [(env, b, seed) for env in envs for b in budgets[env] if (env, b) not in done]
 
+    failed = []
+
     def record(outcome) -> None:
         if not outcome.ok:
-            print(f"{outcome.item[0]} at {outcome.item[1]}: failed\n{outcome.error}")
+            failed.append(f"{outcome.item[0]} at {outcome.item[1]}: {last_line(outcome.error)}")
+            print(f"failed: {failed[-1]}")
             return
         env_id, budget, _ = outcome.item
         done[env_id, budget] = {"env_id": env_id, "budget": budget, **outcome.result}
         append_record(out / "runs.jsonl", done[env_id, budget])
 
     map_runs(_fresh_process_run, items, workers, address, record)
+    if failed and not done:
+        raise RunsFailed("every run failed: " + "; ".join(failed))
     summary = {"seed": seed}
     for env in envs:
         runs = [done[env, b] for b in sorted(budgets[env]) if (env, b) in done]
@@ -165,6 +170,8 @@ def bench_scale(
     summary["pictures"] = {"scale": str(plot_scale(summary, out / "scale.png"))}
     write_summary(out, summary)
     print_scale(summary, out)
+    if failed:  # after what finished is written: the same command runs the rest again
+        raise RunsFailed(f"{len(failed)} of the runs failed: " + "; ".join(failed))
     return summary
 
 

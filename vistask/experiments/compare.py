@@ -43,7 +43,14 @@ from vistask.experiments.compare_runs import (
     write_eval_log,
 )
 from vistask.experiments.comparison import Comparison
-from vistask.parallel import Outcome, cluster_address, map_runs, ray_session
+from vistask.parallel import (
+    Outcome,
+    RunsFailed,
+    cluster_address,
+    last_line,
+    map_runs,
+    ray_session,
+)
 from vistask.runs import (
     append_record,
     check_same_settings,
@@ -156,7 +163,10 @@ def compare(
     order = {m: k for k, m in enumerate(config.methods)}
     results = sorted(merge_runs(units, config.budgets), key=lambda r: (order[r.method], r.seed))
     if not results:
-        raise RuntimeError("every run failed:\n" + "\n".join(f["error"] for f in failed))
+        raise RunsFailed(
+            "no method and seed finished all its budgets: "
+            + "; ".join(f"{f.get('method')}: {last_line(f['error'])}" for f in failed)
+        )
     for result in results:
         if result.method in VISUAL_METHODS:
             write_eval_log(out / "tensorboard", result)

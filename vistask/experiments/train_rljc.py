@@ -28,10 +28,11 @@ from vistask.experiments.train_rlvc import (
     EvaluateEvery,
     Scorer,
     agent_policy,
+    end_resumable,
     evaluations_of,
     learn_resumable,
 )
-from vistask.runs import check_same_settings, print_table, run_dir, write_summary
+from vistask.runs import check_same_settings, print_table, run_dir
 
 DISCRETE_MAZE = "vistask/VisualMaze-v0"  # the four-action twin of the continuous maze
 
@@ -183,7 +184,7 @@ def train_rljc(
         "history": [asdict(r) for r in rljc.history],
         "seed": seed,
     }
-    write_summary(out, summary)
+    end_resumable(out, summary)
     print_summary(summary, out)
     return summary
 

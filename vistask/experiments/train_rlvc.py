@@ -299,8 +299,9 @@ def learn_resumable(
 ) -> tuple[VisualAgent, float]:
     """``agent.learn(interactions)`` with a checkpoint in ``out/checkpoint.pt`` after each
     database; when a stopped run left one there, go on from it instead (the same result as a
-    run straight through, ``evaluations`` of the stopped part included). The checkpoint is
-    removed once learning ends.
+    run straight through, ``evaluations`` of the stopped part included). The checkpoint stays
+    until the run's summary is written (``end_resumable``): a stop while the learned agent is
+    scored goes on from the last database, not from the start.
 
     Returns:
         The agent, and the seconds that the run's stopped parts took before this call.
@@ -317,9 +318,15 @@ def learn_resumable(
     clock = RunClock(clock_file, before)
     callbacks = [evaluations, clock]
     agent.learn(interactions, callbacks, None, reset, progress, checkpoint=checkpoint)
-    checkpoint.unlink(missing_ok=True)
-    clock_file.unlink(missing_ok=True)
     return agent, before
+
+
+def end_resumable(out: Path, summary: dict) -> None:
+    """Write the run's ``summary`` to ``out``, then remove what a stop would have resumed
+    from (``learn_resumable``'s checkpoint and clock)."""
+    write_summary(out, summary)
+    (out / "checkpoint.pt").unlink(missing_ok=True)
+    (out / "elapsed.json").unlink(missing_ok=True)
 
 
 def evaluations_of(evaluations: EvaluateEvery) -> list[tuple[int, float]]:
@@ -447,7 +454,7 @@ def train_rlvc(
         "history": [asdict(r) for r in rlvc.history],
         "seed": seed,
     }
-    write_summary(out, summary)
+    end_resumable(out, summary)
     print_summary(summary, out)
     return summary
 
