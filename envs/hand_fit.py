@@ -165,7 +165,7 @@ def warn_misfits(spec, tip_probability: float) -> None:
     why = "; ".join(f"{where[c]}, {misfits[c]}" for c in wrong)
     if "upright" not in misfits:
         advice = "stand it upright (tip_probability=0, --tip-probability 0)"
-    elif spec.can_tip and "lying" not in misfits:
+    elif "lying" not in misfits:  # pose_misfits gives one that cannot tip a "lying" misfit
         advice = "lay it on a side (tip_probability=1, --tip-probability 1)"
     else:
         advice = "no resting pose fits: make it smaller, or it will not be grasped"
