@@ -163,4 +163,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    run_main(main)
+    run_main(main, go_on="python scripts/learn_grasps.py --resume {out}")

@@ -95,4 +95,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    run_main(main)
+    run_main(main, go_on="python scripts/train_rlvc.py --resume {out}")

@@ -19,7 +19,8 @@ from vistask.agents import TabularQAgent
 from vistask.grasp import GraspLearner, demonstration_density
 from vistask.objects import ObjectModel
 from vistask.rlvc import RLVC
-from vistask.runs import check_same_settings, read_records, run_dir
+from vistask.runs import check_same_settings, read_json, read_records, run_dir, write_json
+from vistask.saving import load_state, save_state
 from vistask.se3 import SE3KDE, identity_poses, random_poses
 from vistask.vision import Patches
 
@@ -117,6 +118,35 @@ def test_a_run_folder_records_its_script_and_refuses_another(tmp_path, monkeypat
     assert run == {"script": "train_rlvc", "commands": [["train_rlvc.py", "--seed", "3"]] * 2}
     with pytest.raises(ValueError, match="holds a run of 'train_rlvc', not of 'compare'"):
         run_dir("compare", tmp_path)
+
+
+def test_a_write_that_fails_keeps_the_file_before_and_leaves_no_part(tmp_path, monkeypatch):
+    model, summary = tmp_path / "model.pt", tmp_path / "summary.json"
+    save_state(model, "Model", {"a": 1})
+    write_json(summary, {"a": 1})
+
+    def full_disk(value, file):  # as torch.save on a full disk: a part written, then an error
+        Path(file).write_bytes(b"part")
+        raise RuntimeError("[enforce fail at inline_container.cc:664] . unexpected pos 64 vs 0")
+
+    def no_space(self, text):
+        self.write_bytes(b"part")
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(torch, "save", full_disk)
+    monkeypatch.setattr(Path, "write_text", no_space)
+    for write, path in (
+        (lambda: save_state(model, "Model", {"a": 2}), model),
+        (lambda: write_json(summary, {"a": 2}), summary),
+    ):
+        with pytest.raises(
+            OSError,
+            match=rf"cannot write {path} .* MB free on its disk\): the file there before is kept",
+        ):
+            write()
+    monkeypatch.undo()
+    assert load_state(model, "Model") == {"a": 1} and read_json(summary) == {"a": 1}
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["model.pt", "summary.json"]
 
 
 def test_garbage_in_a_run_folder_is_named(tmp_path, monkeypatch, capsys):

@@ -157,7 +157,11 @@ def test_train_rlvc_stopped_by_sigterm_resumes_with_the_results_of_a_straight_ru
         time.sleep(0.05)
     child.send_signal(signal.SIGTERM)
     _, err = child.communicate(timeout=300)
-    assert child.returncode != 0 and "KeyboardInterrupt" in err
+    # One line says where the run is and how to go on, not a traceback.
+    go_on = f"train_rlvc.py: stopped by SIGTERM; {stopped} keeps what it finished: go on with "
+    assert child.returncode == 130 and err.strip().splitlines() == [
+        go_on + f"python scripts/train_rlvc.py --resume {stopped}"
+    ]
     assert not (stopped / "summary.json").exists()
     subprocess.run(
         [sys.executable, script, "--resume", str(stopped), "--no-progress"],
@@ -283,7 +287,7 @@ def test_learn_grasps_stopped_by_sigterm_resumes_bit_for_bit(tmp_path):
         time.sleep(0.05)
     child.send_signal(signal.SIGTERM)
     _, err = child.communicate(timeout=300)
-    assert child.returncode != 0 and "KeyboardInterrupt" in err  # stopped, not finished
+    assert child.returncode == 130 and f"--resume {stopped}" in err, err  # stopped, not finished
     assert not (stopped / "summary.json").exists()
     written = (stopped / "cube" / "hypothesis.pt").stat().st_mtime_ns
     resumed = GraspExperiment(**tiny).run(stopped, pictures=0)["objects"]["cube"]
@@ -360,3 +364,52 @@ def test_a_resumed_train_rlvc_keeps_the_evaluations_and_seconds_of_its_stopped_p
     assert late["evaluations"] == straight["evaluations"]
     assert late["rlvc_return"] == straight["rlvc_return"] and late["stages"] == straight["stages"]
     assert not (tmp_path / "late" / "checkpoint.pt").exists()
+
+
+def test_a_run_folder_in_use_is_refused_and_a_stop_says_how_to_go_on(tmp_path):
+    import signal
+    import subprocess
+    import sys
+
+    script = tmp_path / "hold.py"
+    script.write_text(
+        "import sys, time\n"
+        "from vistask.cli import run_main\n"
+        "from vistask.runs import run_dir\n"
+        "def main():\n"
+        "    run_dir('hold', sys.argv[1])\n"
+        "    print('started', flush=True)\n"
+        "    time.sleep(120)\n"
+        "run_main(main, go_on='the same command with --out {out}')\n"
+    )
+    out = tmp_path / "run"
+
+    def start() -> subprocess.Popen:
+        run = subprocess.Popen(
+            [sys.executable, str(script), str(out)],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+        assert run.stdout.readline() == "started\n"
+        return run
+
+    first = start()
+    second = subprocess.run(
+        [sys.executable, str(script), str(out)], capture_output=True, text=True, timeout=120
+    )
+    assert second.returncode == 2
+    assert f"{out} is in use by another run (process {first.pid})" in second.stderr
+    first.send_signal(signal.SIGINT)
+    _, err = first.communicate(timeout=60)
+    assert first.returncode == 130 and err.strip() == (
+        f"hold.py: stopped by Ctrl-C; {out} keeps what it finished: go on with the same "
+        f"command with --out {out}"
+    )
+    # A run killed with nothing to catch frees its folder too.
+    third = start()
+    third.kill()
+    third.wait()
+    fourth = start()
+    fourth.kill()
+    fourth.wait()

@@ -8,6 +8,7 @@ import sys
 import time
 
 import numpy as np
+import psutil
 import pytest
 
 from vistask.experiments import statistics
@@ -119,3 +120,28 @@ def test_a_script_without_a_main_guard_stops_in_its_worker_with_what_to_do(tmp_p
     # its run fails and this process runs the others.
     assert "imports the main script again" in done.stderr
     assert done.stdout.strip().splitlines()[-1] == "[False, True, True]"
+
+
+def test_worker_processes_end_when_the_process_that_started_them_is_killed(tmp_path):
+    script = tmp_path / "killed.py"
+    script.write_text(
+        "import os, time\n"
+        "from vistask.parallel import map_runs\n"
+        "def run(seconds):\n"
+        f"    open({str(tmp_path)!r} + f'/{{os.getpid()}}.pid', 'w').close()\n"
+        "    time.sleep(seconds)\n"
+        "if __name__ == '__main__':\n"
+        "    map_runs(run, [300, 300, 300], workers=3)\n"
+    )
+    child = subprocess.Popen([sys.executable, str(script)])
+    deadline = time.monotonic() + 120
+    while len(list(tmp_path.glob("*.pid"))) < 3 and time.monotonic() < deadline:
+        time.sleep(0.2)
+    workers = [int(p.stem) for p in tmp_path.glob("*.pid") if int(p.stem) != child.pid]
+    assert len(workers) == 2
+    child.kill()  # SIGKILL: nothing in the process can catch it
+    child.wait()
+    deadline = time.monotonic() + 30
+    while any(psutil.pid_exists(pid) for pid in workers) and time.monotonic() < deadline:
+        time.sleep(0.2)
+    assert not any(psutil.pid_exists(pid) for pid in workers)

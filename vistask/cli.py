@@ -16,6 +16,7 @@ import gymnasium as gym
 
 from vistask.checks import check_device
 from vistask.parallel import RunsFailed, unreachable
+from vistask.runs import held_run_folder, holding_run_folders
 
 
 def _checked(text: str, convert: Callable[[str], float], ok: Callable, accepted: str):
@@ -69,7 +70,7 @@ def interrupt_on_sigterm() -> None:
     already on disk."""
 
     def interrupt(signum, frame):
-        raise KeyboardInterrupt(f"signal {signum}")
+        raise KeyboardInterrupt(signal.Signals(signum).name)
 
     signal.signal(signal.SIGTERM, interrupt)
 
@@ -125,22 +126,45 @@ def ray_address(text: str) -> str:
     return text
 
 
-def run_main(main: Callable[[], object]) -> None:
+def run_main(main: Callable[[], object], go_on: str = "") -> None:
     """Run a script's ``main``; an input refused on the way (``ValueError``, ``TypeError``,
     ``FileNotFoundError``, a gymnasium error, a module named in an env id that does not
     import: ``ModuleNotFoundError``) or a run that would not fit in memory
     (``MemoryError``) ends it with one line, as argparse's errors do (exit status 2); runs
-    that failed (``RunsFailed``) end it with their errors' last lines (exit status 1).
-    ``VISTASK_TRACEBACK=1`` shows the traceback instead."""
+    that failed (``RunsFailed``) end it with their errors' last lines, and a file that could
+    not be written (``OSError``, such as a full disk) with its path (exit status 1).
+    ``VISTASK_TRACEBACK=1`` shows the traceback instead.
+
+    The script holds the run folders it makes (``runs.holding_run_folders``). A stop (Ctrl-C,
+    or SIGTERM after ``interrupt_on_sigterm``) ends it with a line naming its folder and how
+    to go on (exit status 130).
+
+    Args:
+        go_on: how to go on after a stop, ``{out}`` standing for the run folder (such as
+            ``"python scripts/train_rlvc.py --resume {out}"``); empty: the script does not
+            resume.
+    """
     refused = (ValueError, TypeError, FileNotFoundError, ModuleNotFoundError, MemoryError)
-    try:
-        main()
-    except (*refused, gym.error.Error, RunsFailed) as error:
-        if os.environ.get("VISTASK_TRACEBACK"):
-            raise
-        print(f"{Path(sys.argv[0]).name}: error: {error}", file=sys.stderr)
-        print("(VISTASK_TRACEBACK=1 shows where it was raised)", file=sys.stderr)
-        sys.exit(1 if isinstance(error, RunsFailed) else 2)
+    script = Path(sys.argv[0]).name
+    with holding_run_folders():
+        try:
+            main()
+        except (*refused, gym.error.Error, RunsFailed, OSError) as error:
+            if os.environ.get("VISTASK_TRACEBACK"):
+                raise
+            print(f"{script}: error: {error}", file=sys.stderr)
+            print("(VISTASK_TRACEBACK=1 shows where it was raised)", file=sys.stderr)
+            sys.exit(2 if isinstance(error, (*refused, gym.error.Error)) else 1)
+        except KeyboardInterrupt as stop:
+            if os.environ.get("VISTASK_TRACEBACK"):
+                raise
+            line = f"\n{script}: stopped by {str(stop) or 'Ctrl-C'}"
+            out = held_run_folder()
+            if out is not None:
+                line += f"; {out} keeps what it finished"
+                line += f": go on with {go_on.format(out=out)}" if go_on else ""
+            print(line, file=sys.stderr)
+            sys.exit(130)
 
 
 def check_resume_alone(

@@ -27,6 +27,7 @@ import os
 import queue
 import re
 import threading
+import time
 import traceback
 from collections import deque
 from collections.abc import Callable, Iterable, Iterator
@@ -98,6 +99,26 @@ def one_thread() -> None:
     os.environ["OMP_NUM_THREADS"] = "1"
     torch.set_num_threads(1)
     cv2.setNumThreads(1)
+
+
+def _start_worker(parent: int) -> None:
+    """A worker process's start: one thread (``one_thread``), and an end of its own when the
+    process ``parent`` that hands it runs has died (a ``kill -9`` leaves its workers running
+    otherwise, as children of the process server)."""
+    import psutil
+
+    one_thread()
+    try:
+        watched = psutil.Process(parent)
+    except psutil.NoSuchProcess:
+        os._exit(1)
+
+    def watch() -> None:
+        while watched.is_running():  # False too for a new process with the same pid
+            time.sleep(1.0)
+        os._exit(1)
+
+    threading.Thread(target=watch, name="watch-parent", daemon=True).start()
 
 
 @contextmanager
@@ -240,7 +261,9 @@ def _map_processes(fn, items: list, workers: int, done: Callable[[Outcome], None
     check_not_importing_main("map_runs")
     context = multiprocessing.get_context("forkserver")
     context.set_forkserver_preload([*PRELOAD, fn.__module__])
-    pool = ProcessPoolExecutor(workers - 1, mp_context=context, initializer=one_thread)
+    pool = ProcessPoolExecutor(
+        workers - 1, mp_context=context, initializer=_start_worker, initargs=(os.getpid(),)
+    )
     todo, lock, stopping = deque(items), threading.Lock(), threading.Event()
     # The processes' outcomes as their runs end; None: a run handed back to this process.
     ended: queue.SimpleQueue[Outcome | None] = queue.SimpleQueue()

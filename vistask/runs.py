@@ -2,15 +2,71 @@
 
 from __future__ import annotations
 
+import fcntl
 import json
 import math
 import os
 import sys
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
-from typing import Any
+from typing import IO, Any
 
 import numpy as np
+
+from vistask.saving import cannot_write
+
+# The run folders this process holds (``holding_run_folders``): the folder as given and its open
+# lock file, by the folder's resolved path.
+_held: dict[Path, tuple[Path, IO[str]]] | None = None
+
+
+@contextmanager
+def holding_run_folders() -> Iterator[None]:
+    """Inside the block, ``run_dir`` holds each folder it gives: another process asking
+    ``run_dir`` for it is refused until the block ends. Scripts run inside one
+    (``cli.run_main``), so that two commands never write one run; the lock goes with the
+    process, ``kill -9`` included."""
+    global _held
+    if _held is not None:  # already holding
+        yield
+        return
+    _held = {}
+    try:
+        yield
+    finally:
+        for _, lock in _held.values():
+            lock.close()
+        _held = None
+
+
+def held_run_folder() -> Path | None:
+    """The first run folder this process holds (None: none, or not holding)."""
+    return next(iter(_held.values()))[0] if _held else None
+
+
+def _hold(path: Path) -> None:
+    if _held is None or path.resolve() in _held:
+        return
+    try:
+        lock = open(path / ".lock", "a+")  # noqa: SIM115 (open while the process runs)
+    except OSError as error:
+        raise ValueError(f"out: cannot write in the run folder {path}: {error.strerror}") from None
+    try:
+        fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        lock.seek(0)
+        owner = lock.read().strip() or "unknown"
+        lock.close()
+        raise ValueError(
+            f"out: {path} is in use by another run (process {owner}): wait for it to end, "
+            "or pick another output folder"
+        ) from None
+    lock.truncate(0)
+    lock.write(f"{os.getpid()}\n")
+    lock.flush()
+    _held[path.resolve()] = path, lock
 
 
 def run_dir(script: str, out: str | Path | None = None) -> Path:
@@ -18,7 +74,8 @@ def run_dir(script: str, out: str | Path | None = None) -> Path:
 
     The folder's ``run.json`` records the script that made it and the command line of every
     call on it; a folder that another script made is refused, so that no run overwrites
-    another's results.
+    another's results. Inside ``holding_run_folders`` (as in the scripts), a folder another
+    process holds is refused too.
     """
     path = Path(out) if out else Path("runs") / f"{script}-{time.strftime('%Y%m%d-%H%M%S')}"
     if path.exists() and not path.is_dir():
@@ -27,6 +84,7 @@ def run_dir(script: str, out: str | Path | None = None) -> Path:
         path.mkdir(parents=True, exist_ok=True)
     except OSError as error:  # read-only, not permitted, a file on the way
         raise ValueError(f"out: cannot make the run folder {path}: {error.strerror}") from None
+    _hold(path)
     record = path / "run.json"
     run = read_json(record) if record.exists() else {"script": script, "commands": []}
     if run.get("script") != script:
@@ -73,7 +131,12 @@ def write_json(path: str | Path, value: Any) -> None:
     meanwhile leaves the old file or the new one, never a part."""
     path = Path(path)
     partial = path.with_name(path.name + ".partial")
-    partial.write_text(json.dumps(_plain(value), indent=2, allow_nan=False) + "\n")
+    text = json.dumps(_plain(value), indent=2, allow_nan=False) + "\n"
+    try:
+        partial.write_text(text)
+    except OSError as error:  # a full disk: no part left behind
+        partial.unlink(missing_ok=True)
+        raise OSError(cannot_write(path, error)) from error
     os.replace(partial, path)
 
 

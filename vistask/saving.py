@@ -7,6 +7,7 @@ plain Python values only, so that ``torch.load(weights_only=True)`` reads it saf
 from __future__ import annotations
 
 import os
+import shutil
 from pathlib import Path
 
 import torch
@@ -18,16 +19,28 @@ def save_state(path: str | Path, kind: str, state: dict) -> Path:
     """Write ``state`` of a ``kind`` of model (e.g. ``"RLVCAgent"``) to ``path``.
 
     The file is written next to its destination and renamed into place, so that a crash
-    mid-write never leaves a corrupt file where a good one was.
+    mid-write never leaves a corrupt file where a good one was; a write that fails (a full
+    disk) removes its part and raises ``OSError`` naming the path and the space left.
     """
     path = Path(path)
     if path.is_dir():
         raise ValueError(f"path: {path} is a folder; name a file in it to save to")
     path.parent.mkdir(parents=True, exist_ok=True)
     partial = path.with_name(f".{path.name}.partial")
-    torch.save({"kind": kind, "version": VERSION, "state": state}, partial)
+    try:
+        torch.save({"kind": kind, "version": VERSION, "state": state}, partial)
+    except Exception as error:  # torch reports a full disk as a RuntimeError
+        partial.unlink(missing_ok=True)
+        raise OSError(cannot_write(path, error)) from error
     os.replace(partial, path)
     return path
+
+
+def cannot_write(path: Path, error: Exception) -> str:
+    """Why ``path`` was not written: ``error`` and the space left on its disk."""
+    free = shutil.disk_usage(path.parent).free / 2**20
+    kept = "the file there before is kept" if path.exists() else "nothing was written"
+    return f"cannot write {path} ({error}; {free:.0f} MB free on its disk): {kept}"
 
 
 def load_state(path: str | Path, kind: str) -> dict:
