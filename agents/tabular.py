@@ -210,6 +210,7 @@ class TabularQAgent(SB3Model):
             "rng": self.rng.bit_generator.state,
             "env_identity": self.env_identity,
             "starts": list(self.starts),
+            "tensorboard_log": None if self.tensorboard_log is None else str(self.tensorboard_log),
         }
 
     def save(self, path: str | Path) -> None:
@@ -218,7 +219,9 @@ class TabularQAgent(SB3Model):
 
     @classmethod
     def load(cls, path: str | Path, env: gym.Env | None = None) -> TabularQAgent:
-        """Load a saved agent; with ``env``, check that its spaces match."""
+        """Load a saved agent; with ``env``, check that its spaces match. It logs to the
+        ``tensorboard_log`` it was saved with (set ``agent.tensorboard_log = None`` to log no
+        more)."""
         state = load_state(path, "TabularQAgent")
         q = state["q"].numpy()
         agent = cls(
@@ -248,6 +251,7 @@ class TabularQAgent(SB3Model):
         agent.env, agent.q, agent.num_timesteps = env, q, state["num_timesteps"]
         agent.starts = starts
         agent.env_identity = state.get("env_identity")
+        agent.tensorboard_log = state.get("tensorboard_log")
         if env is not None:
             check_same_env(agent.env_identity, env, learning=False)
         agent._seeded = agent.num_timesteps > 0

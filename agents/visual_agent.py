@@ -572,6 +572,7 @@ class VisualAgent(SB3Model):
             "learner": self.learner.state_dict(),
             "num_timesteps": self.num_timesteps,
             "next_seed": self._next_seed,
+            "tensorboard_log": None if self.tensorboard_log is None else str(self.tensorboard_log),
         }
 
     @classmethod
@@ -579,9 +580,11 @@ class VisualAgent(SB3Model):
         cls, path: str | Path, env: gym.Env | None = None, tensorboard_log: str | Path | None = None
     ):
         """Load a saved agent; with ``env``, check that its spaces are the ones it learned on
-        (it can then ``learn`` more)."""
+        (it can then ``learn`` more). Its ``tensorboard_log`` is the one it was saved with
+        unless given (set ``agent.tensorboard_log = None`` to log no more)."""
         state = load_state(path, cls.__name__)
         params = cls._params_from_state(state["params"])
+        tensorboard_log = tensorboard_log or state.get("tensorboard_log")
         agent = cls(None, tensorboard_log=tensorboard_log, **params)
         dtype = np.dtype(state["observation_dtype"])
         agent.observation_space = gym.spaces.Box(0, 255, tuple(state["observation_shape"]), dtype)

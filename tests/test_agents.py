@@ -284,6 +284,26 @@ def test_eval_callback_evaluates_the_agent_as_an_sb3_model(tmp_path, monkeypatch
     assert {e.step for e in run.Scalars("rollout/ep_rew_mean")} <= set(stages)
 
 
+def test_a_loaded_agent_goes_on_logging_where_it_was_saved_from(tmp_path):
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    agent = RLVCAgent(small_maze(), n_words=256, seed=0, tensorboard_log=tmp_path / "tb")
+    agent.learn(1000).save(tmp_path / "rlvc.pt")
+    first = len(agent.rlvc.history)
+    loaded = RLVCAgent.load(tmp_path / "rlvc.pt", env=small_maze())
+    assert loaded.tensorboard_log == str(tmp_path / "tb")
+    loaded.learn(1000, reset_num_timesteps=False)
+    (run,) = (tmp_path / "tb").iterdir()  # the same run, its stages on after the first
+    stages = [e.step for e in EventAccumulator(str(run)).Reload().Scalars("rlvc/classes")]
+    assert len(stages) > first and stages == list(range(len(stages)))
+    loaded.tensorboard_log = None
+    loaded.save(tmp_path / "quiet.pt")
+    assert RLVCAgent.load(tmp_path / "quiet.pt").tensorboard_log is None
+    tabular = TabularQAgent(gym.make("FrozenLake-v1"), tensorboard_log=tmp_path / "q")
+    tabular.learn(100).save(tmp_path / "q.pt")
+    assert TabularQAgent.load(tmp_path / "q.pt").tensorboard_log == str(tmp_path / "q")
+
+
 def test_predict_is_epsilon_greedy_when_not_deterministic(small_agent):
     maze = small_agent.env.unwrapped
     images = np.stack([maze.percept_at(p) for p in start_positions(maze.geometry, 200)])

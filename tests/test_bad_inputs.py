@@ -169,6 +169,13 @@ def test_resuming_a_finished_run_is_refused(tmp_path, monkeypatch, capsys):
     with pytest.raises(SystemExit):
         runpy.run_path(str(ROOT / "scripts" / "train_rlvc.py"), run_name="__main__")
     assert "holds a finished run" in capsys.readouterr().err
+    # The same command again, as a fresh run into the folder, would learn over it
+    (tmp_path / "run.json").write_text('{"script": "train_rlvc", "commands": []}')
+    (tmp_path / "settings.json").unlink()  # the defaults' settings, written by this command
+    monkeypatch.setattr(sys, "argv", ["train_rlvc.py", "--out", str(tmp_path)])
+    with pytest.raises(SystemExit):
+        runpy.run_path(str(ROOT / "scripts" / "train_rlvc.py"), run_name="__main__")
+    assert f"{tmp_path} holds a finished run" in capsys.readouterr().err
 
 
 # -- every public entry point checks the types its annotations name ---------------------------

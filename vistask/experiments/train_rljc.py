@@ -28,6 +28,7 @@ from vistask.experiments.train_rlvc import (
     EvaluateEvery,
     Scorer,
     agent_policy,
+    check_unfinished,
     end_resumable,
     evaluations_of,
     learn_resumable,
@@ -131,6 +132,7 @@ def train_rljc(
     if hyperparams:  # absent, not empty, in runs of the defaults: those resume as before
         settings["hyperparams"] = hyperparams
     check_same_settings(out / "settings.json", settings)
+    check_unfinished(out)
     env = gym.make(env_id, **(env_kwargs or {}))
     scorer = Scorer(env_id, env_kwargs)
     agent = RLJCAgent(env, **hyperparams, seed=seed, tensorboard_log=out / "tensorboard")

@@ -294,6 +294,15 @@ class RunClock(BaseCallback):
         return True
 
 
+def check_unfinished(out: Path) -> None:
+    """Refuse a run folder that holds a finished run: learning again would overwrite it."""
+    if (out / "summary.json").exists():
+        raise ValueError(
+            f"out: {out} holds a finished run (summary.json and its agent): pick another "
+            "output folder"
+        )
+
+
 def learn_resumable(
     agent: VisualAgent, interactions: int, out: Path, evaluations: EvaluateEvery, progress: bool
 ) -> tuple[VisualAgent, float]:
@@ -314,7 +323,7 @@ def learn_resumable(
         before = read_json(clock_file)["seconds"] if clock_file.exists() else 0.0
     else:
         reset, before = True, 0.0
-        evaluations.record.unlink(missing_ok=True)  # a finished run's, learned again
+        evaluations.record.unlink(missing_ok=True)  # a run stopped before its first checkpoint
     clock = RunClock(clock_file, before)
     callbacks = [evaluations, clock]
     agent.learn(interactions, callbacks, None, reset, progress, checkpoint=checkpoint)
@@ -378,6 +387,7 @@ def train_rlvc(
         settings["eval_starts"] = eval_starts
     settings |= {"seed": seed, "hyperparams": hyperparams}
     check_same_settings(out / "settings.json", settings)
+    check_unfinished(out)
     env = gym.make(env_id, **(env_kwargs or {}))
     scorer = Scorer(env_id, env_kwargs, eval_starts)
     agent = RLVCAgent(
