@@ -63,7 +63,7 @@ def main() -> None:
     )
     parser.add_argument(
         "--grid",
-        type=lambda text: None if text == "rlvc" else int(text),
+        type=grid_cells,
         default=10,
         help="tabular baseline's cells per dimension of the true state, or 'rlvc': as many "
         "cells as RLVC's classes",
@@ -116,6 +116,15 @@ def main() -> None:
     interrupt_on_sigterm()
     summary = compare(config, args.out, workers=args.workers, address=args.address)
     sys.exit(1 if summary["failed"] else 0)
+
+
+def grid_cells(text: str) -> int | None:
+    """``--grid``: 'rlvc' (None), or a positive integer."""
+    if text == "rlvc":
+        return None
+    if not text.isdigit() or int(text) < 1:
+        raise argparse.ArgumentTypeError(f"must be 'rlvc' or a positive integer, got {text}")
+    return int(text)
 
 
 if __name__ == "__main__":

@@ -12,7 +12,7 @@ import torch
 
 from vistask.experiments.compare import compare
 from vistask.experiments.compare_results import aggregate, interactions_to, speedups
-from vistask.experiments.compare_runs import RunResult
+from vistask.experiments.compare_runs import RunResult, sb3_env, sb3_pixels
 from vistask.experiments.comparison import DISCRETE_METHODS, Comparison
 from vistask.experiments.tasks import GridCells, task_for
 
@@ -129,7 +129,7 @@ def test_a_comparison_resumes_where_it_stopped(tmp_path):
     assert len((tmp_path / "runs.jsonl").read_text().splitlines()) == len(lines)
     returns = lambda s: [(r["method"], r["seed"], r["returns"]) for r in s["runs"]]  # noqa: E731
     assert returns(again) == returns(first)
-    with pytest.raises(ValueError, match=r"other settings \(seeds\)"):
+    with pytest.raises(ValueError, match=r"other settings \(seeds 1 there, 2 now\)"):
         compare(_quick_rlvc_and_random(seeds=2), tmp_path, progress=False, workers=1)
 
 
@@ -222,3 +222,25 @@ def test_a_continuous_maze_compares_rljc_with_sac_and_ppo(tmp_path):
         Comparison(env_id="vistask/VisualMazeContinuous-v0", methods=("rlvc",))
     with pytest.raises(ValueError, match="discrete actions: methods must"):
         Comparison(methods=("sac",))
+
+
+def test_sb3_baselines_take_grey_images_and_images_below_their_cnns_size():
+    from stable_baselines3 import DQN
+
+    from vistask.envs import VisualMazeEnv
+
+    grey = gym.spaces.Box(0, 255, (20, 24), np.uint8)
+    pixels = sb3_pixels(grey)
+    image = grey.sample()
+    big = pixels(image)
+    assert big.shape == (40, 48, 1) and (big[::2, ::2, 0] == image).all()  # the same pixels
+    assert pixels(np.stack([image] * 3)).shape == (3, 40, 48, 1)  # a batch
+    assert sb3_pixels(gym.spaces.Box(0, 255, (64, 64, 3), np.uint8)) is None
+    maze = gym.wrappers.TransformObservation(  # a grey 20-pixel view: NatureCNN needs 36
+        VisualMazeEnv(window=20),
+        lambda o: o.mean(axis=2).astype(np.uint8),
+        gym.spaces.Box(0, 255, (20, 20), np.uint8),
+    )
+    env = sb3_env(maze, sb3_pixels(maze.observation_space))
+    assert env.observation_space.shape == (40, 40, 1)
+    DQN("CnnPolicy", env, learning_starts=20, buffer_size=200, seed=0).learn(60)

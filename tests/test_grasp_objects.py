@@ -31,7 +31,7 @@ def test_a_bench_given_more_objects_keeps_the_settings_it_checks(tmp_path) -> No
     check_same_settings(path, {"objects": ["lemon"], "cycles": 5}, free)
     check_same_settings(path, {"objects": ["lemon", "can"], "cycles": 5}, free)
     assert json.loads(path.read_text())["objects"] == ["lemon", "can"]
-    with pytest.raises(ValueError, match=r"other settings \(cycles\)"):
+    with pytest.raises(ValueError, match=r"other settings \(cycles 5 there, 3 now\)"):
         check_same_settings(path, {"objects": ["lemon"], "cycles": 3}, free)
 
 

@@ -145,3 +145,17 @@ def test_worker_processes_end_when_the_process_that_started_them_is_killed(tmp_p
     while any(psutil.pid_exists(pid) for pid in workers) and time.monotonic() < deadline:
         time.sleep(0.2)
     assert not any(psutil.pid_exists(pid) for pid in workers)
+
+
+def test_a_failed_runs_line_names_its_exception_even_when_its_message_has_several_lines():
+    from vistask.parallel import last_line
+
+    sb3 = (
+        'Traceback (most recent call last):\n  File "run.py", line 3, in <module>\n'
+        "AssertionError: You should use NatureCNN only with images not with Box(0, 255, (48,))\n"
+        "If you are using a custom environment,\nplease check it using our env checker:\n"
+        "https://stable-baselines3.readthedocs.io/en/master/guide/custom_env.html\n"
+    )
+    assert last_line(sb3).startswith("AssertionError: You should use NatureCNN")
+    assert last_line("Traceback:\n  File x\nValueError: bad\nhint: do x") == "ValueError: bad"
+    assert last_line("Traceback:\n  File x\nKeyboardInterrupt\n") == "KeyboardInterrupt"

@@ -37,6 +37,8 @@ from dataclasses import dataclass
 from typing import Any
 
 _ANSI = re.compile(r"\x1b\[[0-9;]*m")
+# "ValueError: ...", "RayTaskError(ValueError): ..." at a line's start
+_EXCEPTION = re.compile(r"[A-Za-z_][\w.]*(Error|Exception|Exit|Interrupt|Failed)(\([\w.]+\))?: ")
 # Imported once by the process server, not by every worker: torch imports its compiler
 # (1.6 s) at the first optimizer a process makes.
 PRELOAD = ("torch._dynamo",)
@@ -61,9 +63,11 @@ class RunsFailed(RuntimeError):
 
 
 def last_line(error: str) -> str:
-    """The last non-empty line of a traceback text (the exception and its message)."""
+    """The line of a traceback text that names the exception (``ValueError: ...``; the first
+    of a message of several lines), else its last non-empty line."""
     lines = [line for line in error.strip().splitlines() if line.strip()]
-    return lines[-1] if lines else error
+    named = [line for line in lines if _EXCEPTION.match(line)]
+    return named[-1] if named else lines[-1] if lines else error
 
 
 def cluster_address(address: str | None = None) -> str | None:

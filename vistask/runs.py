@@ -63,6 +63,9 @@ def _hold(path: Path) -> None:
             f"out: {path} is in use by another run (process {owner}): wait for it to end, "
             "or pick another output folder"
         ) from None
+    except OSError:  # a file system without locks (some network ones): run unguarded
+        lock.close()
+        return
     lock.truncate(0)
     lock.write(f"{os.getpid()}\n")
     lock.flush()
@@ -185,6 +188,12 @@ def print_table(rows: dict[str, Any], title: str = "") -> None:
         print(f"{key:<{width}}  {text}")
 
 
+def _short(value: Any, width: int = 60) -> str:
+    """``value`` as compact JSON, cut to ``width`` characters."""
+    text = json.dumps(value, separators=(",", ":"))
+    return text if len(text) <= width else text[: width - 3] + "..."
+
+
 def check_same_settings(path: str | Path, settings: dict, free: tuple[str, ...] = ()) -> None:
     """Write ``settings`` to ``path`` (JSON), or, if a stopped run left it there, check that
     they are the same: resuming must never mix two configurations in one folder.
@@ -208,9 +217,12 @@ def check_same_settings(path: str | Path, settings: dict, free: tuple[str, ...] 
         if before.get(k) != settings.get(k) and k not in free
     )
     if changed:
+        differences = [
+            f"{k} {_short(before.get(k))} there, {_short(settings.get(k))} now" for k in changed
+        ]
         raise ValueError(
-            f"{path.parent} holds a run with other settings ({', '.join(changed)}); resume it "
-            "with the same settings or pick another output folder"
+            f"{path.parent} holds a run with other settings ({'; '.join(differences)}); "
+            "resume it with the same settings or pick another output folder"
         )
     if before != settings:
         write_json(path, settings)

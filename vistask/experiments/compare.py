@@ -205,7 +205,7 @@ def compare(
         )
     if failed:
         print(
-            f"{len(failed)} runs failed (errors in summary.json, 'failed'); the same command "
-            "runs them again and keeps the finished ones"
+            f"{len(failed)} runs failed (their errors in summary.json, 'failed'); once the "
+            "cause is fixed, the same command runs them again and keeps the finished ones"
         )
     return summary

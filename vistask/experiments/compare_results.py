@@ -194,23 +194,27 @@ def write_pictures(
         name: (np.array(c["iqm"]), np.array(c["ci_low"]), np.array(c["ci_high"]))
         for name, c in ((n, m["curve"]) for n, m in methods.items())
     }
-    statistics.plot_sample_efficiency(out / "curves.png", budgets, curves, oracle)
+    colors = statistics.method_colors(list(methods))
+    statistics.plot_sample_efficiency(out / "curves.png", budgets, curves, oracle, colors)
     score = "return / oracle" if oracle is not None else "episode reward"
-    statistics.plot_aggregates(out / "aggregates.png", stats["aggregates"], score)
+    statistics.plot_aggregates(out / "aggregates.png", stats["aggregates"], score, colors)
     profiles = {
         name: (np.array(p["fraction"]), np.array(p["ci_low"]), np.array(p["ci_high"]))
         for name, p in stats["profiles"].items()
         if name != "taus"
     }
-    statistics.plot_profiles(out / "profiles.png", profiles, stats["profiles"]["taus"], score)
-    plot_wallclock(out / "wallclock.png", methods, oracle)
+    taus = stats["profiles"]["taus"]
+    statistics.plot_profiles(out / "profiles.png", profiles, taus, score, colors)
+    plot_wallclock(out / "wallclock.png", methods, oracle, colors)
     if stats["improvement"]:
         statistics.plot_improvement(out / "improvement.png", stats["improvement"])
 
 
-def plot_wallclock(path: Path, methods: dict[str, dict], oracle: float | None) -> None:
+def plot_wallclock(
+    path: Path, methods: dict[str, dict], oracle: float | None, colors: dict[str, tuple]
+) -> None:
     """IQM return against the median training seconds behind it (log x), per method that
-    trains (the random baseline does not)."""
+    trains (the random baseline does not), in each method's colour."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -221,7 +225,7 @@ def plot_wallclock(path: Path, methods: dict[str, dict], oracle: float | None) -
         seconds = m["curve"].get("train_seconds")
         if seconds is None or not np.all(np.asarray(seconds) > 0):
             continue
-        ax.plot(seconds, m["curve"]["iqm"], marker="o", label=name)
+        ax.plot(seconds, m["curve"]["iqm"], marker="o", label=name, color=colors[name])
     if oracle is not None:
         ax.axhline(oracle, color="k", linestyle="--", label="oracle (true state)")
         ax.axhline(0.9 * oracle, color="k", linestyle=":", label="90% of oracle")

@@ -53,9 +53,41 @@ def _random_policy(seed: int, space: gym.spaces.Space) -> Policy:
     return lambda percepts, positions: policy(percepts, rng)
 
 
-def _model_policy(model) -> Policy:
-    """An SB3 model (or anything with ``predict``) on percepts, batched."""
-    return lambda percepts, positions: model.predict(percepts, deterministic=True)[0]
+def _model_policy(model, pixels: Callable[[np.ndarray], np.ndarray] | None = None) -> Policy:
+    """An SB3 model (or anything with ``predict``) on percepts, batched, each made into the
+    model's input by ``pixels`` (``sb3_pixels``) first."""
+    if pixels is None:
+        return lambda percepts, positions: model.predict(percepts, deterministic=True)[0]
+    return lambda percepts, positions: model.predict(pixels(percepts), deterministic=True)[0]
+
+
+SB3_MIN_SIDE = 36  # the smallest image side SB3's CnnPolicy (NatureCNN) takes
+
+
+def sb3_pixels(space: gym.spaces.Box) -> Callable[[np.ndarray], np.ndarray] | None:
+    """How percepts of the image ``space`` become images SB3's ``CnnPolicy`` takes, or None
+    where they already are: a grey (H, W) image gets a channel axis, and an image with a
+    side below 36 pixels each pixel repeated by the smallest whole factor that reaches it
+    (the same pixels, larger). The function takes one image or a batch (N, ...)."""
+    grey = len(space.shape) == 2
+    factor = -(-SB3_MIN_SIDE // min(space.shape[:2]))
+    if not grey and factor <= 1:
+        return None
+
+    def pixels(images: np.ndarray) -> np.ndarray:
+        images = images[..., None] if grey else images
+        if factor > 1:
+            images = images.repeat(factor, axis=-3).repeat(factor, axis=-2)
+        return images
+
+    return pixels
+
+
+def sb3_env(env: gym.Env, pixels: Callable[[np.ndarray], np.ndarray]) -> gym.Env:
+    """``env`` with its percepts made into SB3 images by ``pixels``."""
+    sample = pixels(env.observation_space.sample())
+    space = gym.spaces.Box(0, 255, sample.shape, np.uint8)
+    return gym.wrappers.TransformObservation(env, pixels, space)
 
 
 def run_visual(
@@ -147,18 +179,27 @@ def run_sb3(
             while len(returns) < len(budgets) and self.num_timesteps >= budgets[len(returns)]:
                 t0 = time.perf_counter()
                 seconds.append(t0 - clock["start"] - clock["evaluating"])
-                returns.append(evaluate(_model_policy(self.model)))
+                returns.append(evaluate(_model_policy(self.model, pixels)))
                 clock["evaluating"] += time.perf_counter() - t0
                 log(budgets[len(returns) - 1], returns[-1], seconds[-1])
             return len(returns) < len(budgets)
 
     cls = {"dqn": DQN, "ppo": PPO, "sac": SAC}[method]
+    env = gym.make(config.env_id, **config.env_kwargs)
+    pixels = sb3_pixels(env.observation_space)
+    wrap = None if pixels is None else functools.partial(sb3_env, pixels=pixels)
     if method == "ppo":
+        env.close()
+        # A function, not the id: make_vec_env gives an id render_mode="rgb_array", which
+        # envs without it warn of.
         env = make_vec_env(
-            config.env_id, n_envs=config.ppo_envs, seed=seed, env_kwargs=config.env_kwargs
+            functools.partial(gym.make, config.env_id, **config.env_kwargs),
+            n_envs=config.ppo_envs,
+            seed=seed,
+            wrapper_class=wrap,
         )
-    else:
-        env = gym.make(config.env_id, **config.env_kwargs)
+    elif wrap is not None:
+        env = wrap(env)
     model = cls(
         "CnnPolicy",
         env,

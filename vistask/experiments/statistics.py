@@ -228,10 +228,23 @@ def _save(fig, path: Path) -> None:
     plt.close(fig)
 
 
+def method_colors(methods: Sequence[str]) -> dict[str, tuple]:
+    """A colour per method, rliable's palette in the order given: pass it to every picture
+    of one comparison so that a method keeps its colour."""
+    import seaborn as sns
+
+    palette = sns.color_palette("colorblind", max(10, len(methods)))
+    return {m: palette[i] for i, m in enumerate(methods)}
+
+
 def plot_aggregates(
-    path: Path, aggregates: Mapping[str, Mapping[str, list[float]]], xlabel: str = "return / oracle"
+    path: Path,
+    aggregates: Mapping[str, Mapping[str, list[float]]],
+    xlabel: str = "return / oracle",
+    colors: Mapping[str, tuple] | None = None,
 ) -> None:
-    """Rliable's interval plot of ``aggregate_metrics``' output (the metrics it holds)."""
+    """Rliable's interval plot of ``aggregate_metrics``' output (the metrics it holds), one
+    colour per method (``method_colors``)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -243,8 +256,10 @@ def plot_aggregates(
         m: np.array([[v[k][1] for k in metrics], [v[k][2] for k in metrics]])
         for m, v in aggregates.items()
     }
+    # The label's height is a share of the figure, whose height follows the methods.
+    below = -1.8 / len(points)
     fig, _ = plot_utils.plot_interval_estimates(
-        points, cis, metric_names=metrics, xlabel=xlabel, xlabel_y_coordinate=-0.3
+        points, cis, metric_names=metrics, xlabel=xlabel, xlabel_y_coordinate=below, colors=colors
     )
     _save(fig, path)
 
@@ -254,6 +269,7 @@ def plot_profiles(
     profiles: Mapping[str, tuple[np.ndarray, ...]],
     taus: Sequence[float],
     score: str = "return / oracle",
+    colors: Mapping[str, tuple] | None = None,
 ) -> None:
     """Rliable's performance-profile plot of ``performance_profiles``' output."""
     import matplotlib
@@ -268,9 +284,11 @@ def plot_profiles(
         np.asarray(taus),
         performance_profile_cis={m: np.stack([p[1], p[2]]) for m, p in profiles.items()},
         xlabel=rf"{score} ($\tau$)",
+        colors=colors,
         ax=ax,
     )
-    ax.legend(list(profiles), fontsize="small", loc="lower left")
+    # One line a method, in order (the bands around them are not legend entries).
+    ax.legend(ax.get_lines()[: len(profiles)], list(profiles), fontsize="small", loc="lower left")
     _save(fig, path)
 
 
@@ -279,6 +297,7 @@ def plot_sample_efficiency(
     budgets: Sequence[int],
     curves: Mapping[str, tuple[np.ndarray, ...]],
     oracle: float | None = None,
+    colors: Mapping[str, tuple] | None = None,
 ) -> None:
     """Rliable's sample-efficiency plot of ``iqm_curves``' output (log x), with the oracle's
     return and 90% of it as dashed and dotted lines."""
@@ -297,6 +316,7 @@ def plot_sample_efficiency(
         ylabel="IQM return",
         labelsize="medium",
         ticklabelsize="medium",
+        colors=colors,
         ax=ax,
     )
     if oracle is not None:
