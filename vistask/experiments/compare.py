@@ -110,6 +110,8 @@ def compare(
     oracle_return = comparison_task(config).oracle_return  # None: no oracle
     units = load_finished(out, config)
     finished = {(r.method, r.seed, tuple(r.budgets)) for r in units}
+    if units and progress:
+        print(f"{len(units)} runs that an earlier call finished in {out} are kept", flush=True)
     failed: list[dict] = []
 
     def record(outcome: Outcome) -> None:
@@ -119,7 +121,7 @@ def compare(
             if progress:
                 print(
                     f"{spec.method} seed {spec.seed} {list(spec.budgets)} FAILED: "
-                    f"{outcome.error.strip().splitlines()[-1]}",
+                    f"{last_line(outcome.error)}",
                     flush=True,
                 )
             return

@@ -14,7 +14,7 @@ import torch
 
 from vistask.checks import check_at_least
 from vistask.experiments.statistics import iqm_curves
-from vistask.parallel import Outcome, map_runs
+from vistask.parallel import Outcome, last_line, map_runs
 from vistask.rlvc.presence import PackedPresence
 from vistask.rlvc.solver import estimate_mdp, value_iteration
 from vistask.runs import (
@@ -247,7 +247,7 @@ def bench_gridworlds(
         run = outcome.item
         if not outcome.ok:
             failed.append({**asdict(run), "error": outcome.error})
-            line = f"FAILED: {outcome.error.strip().splitlines()[-1]}"
+            line = f"FAILED: {last_line(outcome.error)}"
         else:
             append_record(out / "runs.jsonl", outcome.result)
             scores = " ".join(f"{s:.2f}" for s in outcome.result["success"])

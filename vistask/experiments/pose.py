@@ -43,7 +43,7 @@ from vistask.experiments.pose_scenes import (
 )
 from vistask.experiments.pose_summary import pose_errors, summarize
 from vistask.objects import NBP, DepthCheck, ObjectModel, Open3DRegistration
-from vistask.parallel import Outcome, map_runs
+from vistask.parallel import Outcome, last_line, map_runs
 from vistask.vision import (
     Patches,
     PatchExtractor,
@@ -315,7 +315,7 @@ class PoseBenchmark:
             if not log:
                 return
             if not outcome.ok:
-                log(f"  {cond:11s} {kind:7s} scene {i}: FAILED {outcome.error.splitlines()[-1]}")
+                log(f"  {cond:11s} {kind:7s} scene {i}: FAILED {last_line(outcome.error)}")
                 return
             for r in outcome.result[0]:
                 t_err, r_err = r["translation_error_m"], r["rotation_error_deg"]
