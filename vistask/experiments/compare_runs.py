@@ -56,9 +56,8 @@ def _random_policy(seed: int, space: gym.spaces.Space) -> Policy:
 def _model_policy(model, pixels: Callable[[np.ndarray], np.ndarray] | None = None) -> Policy:
     """An SB3 model (or anything with ``predict``) on percepts, batched, each made into the
     model's input by ``pixels`` (``sb3_pixels``) first."""
-    if pixels is None:
-        return lambda percepts, positions: model.predict(percepts, deterministic=True)[0]
-    return lambda percepts, positions: model.predict(pixels(percepts), deterministic=True)[0]
+    convert = pixels or (lambda percepts: percepts)
+    return lambda percepts, positions: model.predict(convert(percepts), deterministic=True)[0]
 
 
 SB3_MIN_SIDE = 36  # the smallest image side SB3's CnnPolicy (NatureCNN) takes
