@@ -25,7 +25,6 @@ import sys
 import torch
 
 from vistask.cli import (
-    interrupt_on_sigterm,
     json_object,
     non_negative_int,
     positive_int,
@@ -113,7 +112,6 @@ def main() -> None:
     if args.threads:
         torch.set_num_threads(args.threads)
     config = Comparison.quick(**overrides) if args.quick else Comparison(**overrides)
-    interrupt_on_sigterm()
     summary = compare(config, args.out, workers=args.workers, address=args.address)
     sys.exit(1 if summary["failed"] else 0)
 

@@ -26,7 +26,6 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 
 from vistask.cli import (
     check_resume_alone,
-    interrupt_on_sigterm,
     non_negative_float,
     non_negative_int,
     positive_int,
@@ -156,7 +155,6 @@ def main() -> None:
             **where,
         )
         out = run_dir("learn_grasps", args.out)  # once the settings are known to be right
-    interrupt_on_sigterm()
     summary = experiment.run(out)
     print(format_table(summary))
     print(f"wrote {out / 'summary.json'}")

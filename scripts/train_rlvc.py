@@ -21,7 +21,6 @@ import vistask.envs  # noqa: F401  (registers the environments)
 from vistask.agents import RLJCAgent, RLVCAgent
 from vistask.cli import (
     check_resume_alone,
-    interrupt_on_sigterm,
     json_object,
     non_negative_int,
     positive_int,
@@ -82,7 +81,6 @@ def main() -> None:
         overrides = saved.pop("hyperparams", {})
         run = {**saved, "out": args.resume, "progress": run["progress"]}
         args.env, args.env_kwargs = saved["env_id"], saved["env_kwargs"]
-    interrupt_on_sigterm()
     env = gym.make(args.env, **args.env_kwargs)
     env.close()
     continuous = isinstance(env.action_space, gym.spaces.Box)

@@ -7,6 +7,7 @@ import pytest
 
 pytest.importorskip("minigrid")
 
+from vistask.experiments import gridworlds
 from vistask.experiments.gridworlds import (
     EPISODES,
     bench_gridworlds,
@@ -16,6 +17,7 @@ from vistask.experiments.gridworlds import (
     success_rate,
     summarise,
 )
+from vistask.parallel import RunsFailed
 
 ENV = "MiniGrid-Empty-5x5-v0"
 
@@ -58,6 +60,31 @@ def test_the_benchmark_writes_its_summary_and_resumes_what_is_missing(tmp_path, 
     assert "seed 0" not in capsys.readouterr().out  # nothing ran again
     with pytest.raises(ValueError, match="unknown methods"):
         bench_gridworlds([ENV], ["dqn"], [0], [1024], out, workers=1)
+
+
+def test_a_task_that_is_not_minigrid_is_refused_and_failed_runs_end_the_benchmark(
+    tmp_path, monkeypatch
+):
+    for env_id, error in (
+        ("CartPole-v1", "not a MiniGrid task"),
+        ("MiniGrid-Emty-5x5-v0", "Did you mean"),
+    ):
+        with pytest.raises(Exception, match=error):
+            bench_gridworlds([env_id], ["random"], [0], [100], tmp_path / "refused", workers=1)
+    assert not (tmp_path / "refused").exists()  # refused before any work
+    run_grid = gridworlds.run_grid
+
+    def fails_on_seed_1(run):
+        if run.seed == 1:
+            raise RuntimeError("a run that fails")
+        return run_grid(run)
+
+    monkeypatch.setattr(gridworlds, "run_grid", fails_on_seed_1)
+    out = tmp_path / "bench"
+    with pytest.raises(RunsFailed, match=r"1 of the runs failed: .* random: RuntimeError"):
+        bench_gridworlds([ENV], ["random"], [0, 1], [100], out, workers=1)
+    summary = json.loads((out / "summary.json").read_text())  # what finished is written
+    assert list(summary[ENV]["random"]["per_seed"]) and len(summary["failed"]) == 1
 
 
 def test_the_percept_table_acts_on_what_the_database_holds_where_the_classes_cannot():

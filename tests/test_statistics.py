@@ -159,3 +159,19 @@ def test_a_failed_runs_line_names_its_exception_even_when_its_message_has_severa
     assert last_line(sb3).startswith("AssertionError: You should use NatureCNN")
     assert last_line("Traceback:\n  File x\nValueError: bad\nhint: do x") == "ValueError: bad"
     assert last_line("Traceback:\n  File x\nKeyboardInterrupt\n") == "KeyboardInterrupt"
+
+
+def test_a_local_ray_keeps_the_scripts_sigterm_handler():
+    import signal
+
+    from vistask.parallel import ray_session
+
+    def stop(signum, frame):  # as cli.run_main's: a stop that says how to go on
+        raise KeyboardInterrupt
+
+    before = signal.signal(signal.SIGTERM, stop)
+    try:
+        with ray_session(1, "local"):
+            assert signal.getsignal(signal.SIGTERM) is stop  # not Ray's, which exits at once
+    finally:
+        signal.signal(signal.SIGTERM, before)

@@ -9,7 +9,8 @@ import math
 import os
 import signal
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import gymnasium as gym
@@ -64,13 +65,17 @@ def json_object(text: str) -> dict:
     return value
 
 
+_received: list[str] = []  # the signals that interrupt_on_sigterm turned into interrupts
+
+
 def interrupt_on_sigterm() -> None:
     """Turn SIGTERM (a scheduler or ``kill`` stopping the run) into KeyboardInterrupt, so that
     a stopped run closes its simulators and workers as Ctrl-C does; its checkpoints are
     already on disk."""
 
     def interrupt(signum, frame):
-        raise KeyboardInterrupt(signal.Signals(signum).name)
+        _received.append(signal.Signals(signum).name)
+        raise KeyboardInterrupt(_received[-1])
 
     signal.signal(signal.SIGTERM, interrupt)
 
@@ -126,6 +131,15 @@ def ray_address(text: str) -> str:
     return text
 
 
+@contextmanager
+def restored(signum: int, handler) -> Iterator[None]:
+    """Set ``handler`` for signal ``signum`` again when the block ends."""
+    try:
+        yield
+    finally:
+        signal.signal(signum, handler)
+
+
 def run_main(main: Callable[[], object], go_on: str = "") -> None:
     """Run a script's ``main``; an input refused on the way (``ValueError``, ``TypeError``,
     ``FileNotFoundError``, a gymnasium error, a module named in an env id that does not
@@ -136,8 +150,8 @@ def run_main(main: Callable[[], object], go_on: str = "") -> None:
     ``VISTASK_TRACEBACK=1`` shows the traceback instead.
 
     The script holds the run folders it makes (``runs.holding_run_folders``). A stop (Ctrl-C,
-    or SIGTERM after ``interrupt_on_sigterm``) ends it with a line naming its folder and how
-    to go on (exit status 130).
+    or SIGTERM, which ``interrupt_on_sigterm`` turns into one meanwhile) ends it with a line
+    naming its folder and how to go on (exit status 130).
 
     Args:
         go_on: how to go on after a stop, ``{out}`` standing for the run folder (such as
@@ -146,7 +160,9 @@ def run_main(main: Callable[[], object], go_on: str = "") -> None:
     """
     refused = (ValueError, TypeError, FileNotFoundError, ModuleNotFoundError, MemoryError)
     script = Path(sys.argv[0]).name
-    with holding_run_folders():
+    before = signal.getsignal(signal.SIGTERM)
+    interrupt_on_sigterm()
+    with holding_run_folders(), restored(signal.SIGTERM, before):
         try:
             main()
         except (*refused, gym.error.Error, RunsFailed, OSError) as error:
@@ -158,7 +174,9 @@ def run_main(main: Callable[[], object], go_on: str = "") -> None:
         except KeyboardInterrupt as stop:
             if os.environ.get("VISTASK_TRACEBACK"):
                 raise
-            line = f"\n{script}: stopped by {str(stop) or 'Ctrl-C'}"
+            # The signal's name: a library between (Ray) may raise its own bare interrupt.
+            why = _received[-1] if _received else str(stop) or "Ctrl-C"
+            line = f"\n{script}: stopped by {why}"
             out = held_run_folder()
             if out is not None:
                 line += f"; {out} keeps what it finished"

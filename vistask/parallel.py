@@ -26,6 +26,7 @@ import multiprocessing
 import os
 import queue
 import re
+import signal
 import threading
 import time
 import traceback
@@ -173,6 +174,9 @@ def ray_session(workers: int | None = None, address: str | None = None) -> Itera
     address = cluster_address(address)
     if workers is not None and workers < 1:
         raise ValueError(f"workers must be >= 1, got {workers}")
+    # ray.init puts its own SIGTERM handler in place, which exits at once: a script's
+    # (``cli.run_main``: a stop that says how to go on) is set again after it.
+    on_sigterm = signal.getsignal(signal.SIGTERM)
     if address in (None, "local"):
         ray.init(
             num_cpus=workers or os.cpu_count(),
@@ -190,6 +194,8 @@ def ray_session(workers: int | None = None, address: str | None = None) -> Itera
                 why = str(error).splitlines()[0]
         if why is not None:
             raise ValueError(f"Ray cluster (--address or RAY_ADDRESS): {why}")
+    if callable(on_sigterm) and threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGTERM, on_sigterm)
     try:
         yield ray
     finally:

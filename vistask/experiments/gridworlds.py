@@ -14,7 +14,7 @@ import torch
 
 from vistask.checks import check_at_least
 from vistask.experiments.statistics import iqm_curves
-from vistask.parallel import Outcome, last_line, map_runs
+from vistask.parallel import Outcome, RunsFailed, last_line, map_runs
 from vistask.rlvc.presence import PackedPresence
 from vistask.rlvc.solver import estimate_mdp, value_iteration
 from vistask.runs import (
@@ -67,11 +67,24 @@ def make_gridworld(env_id: str, frame: int = FRAME) -> gym.Env:
     Example:
         >>> agent = RLVCAgent(make_gridworld("MiniGrid-DoorKey-5x5-v0")).learn(50_000)
     """
-    import minigrid  # noqa: F401  (registers the MiniGrid ids)
     from minigrid.wrappers import ImgObsWrapper, RGBImgObsWrapper
 
+    check_minigrid(env_id)
     env = ImgObsWrapper(RGBImgObsWrapper(gym.make(env_id)))
     return gym.wrappers.ResizeObservation(env, (frame, frame))
+
+
+def check_minigrid(env_id: str) -> None:
+    """Raise a clear error unless ``env_id`` names a MiniGrid task (gymnasium's own error,
+    with its "Did you mean", for an id that is not registered)."""
+    import minigrid  # noqa: F401  (registers the MiniGrid ids)
+
+    entry_point = gym.spec(env_id).entry_point
+    if not str(getattr(entry_point, "__module__", entry_point)).startswith("minigrid"):
+        raise ValueError(
+            f"{env_id} is not a MiniGrid task: the gridworld benchmark sees MiniGrid's RGB "
+            "frames; compare_baselines.py takes any image env"
+        )
 
 
 def success_rate(
@@ -231,16 +244,25 @@ def bench_gridworlds(
         seeds, ``["to_reach"]`` the smallest budget whose IQM reaches ``SUCCESS`` (None:
         none), ``summary[env]["rlvc"]["percept_table"][str(budget)]`` the IQM success of
         ``percept_table_policy``, ``summary["failed"]`` the runs that raised.
+
+    Raises:
+        ValueError: an env id that is not a MiniGrid task, before any work.
+        RunsFailed: runs failed; raised after the summary of the others is written (the
+            same call again runs only the failed ones).
     """
     unknown = sorted(set(methods) - set(METHODS))
     if unknown:
         raise ValueError(f"unknown methods {unknown}: choose from {list(METHODS)}")
     budgets, seeds = sorted(set(budgets)), sorted(set(seeds))
     check_at_least(1, budgets=min(budgets))
+    for env_id in envs:
+        check_minigrid(env_id)
     out = run_dir("bench_gridworlds", out)
     check_same_settings(out / "settings.json", {"frame": FRAME, "episodes": EPISODES})
     done = {_key(r) for r in read_records(out / "runs.jsonl")}
     todo = [r for r in grid_runs(envs, methods, seeds, budgets) if _key(asdict(r)) not in done]
+    if done and progress:
+        print(f"{len(done)} runs that an earlier call finished in {out} are kept", flush=True)
     failed = []
 
     def finished(outcome: Outcome) -> None:
@@ -258,6 +280,8 @@ def bench_gridworlds(
             )
 
     map_runs(run_grid, todo, workers, address, finished)
+    if failed and not read_records(out / "runs.jsonl"):
+        raise RunsFailed("every run failed: " + "; ".join(last_line(f["error"]) for f in failed))
     summary = summarise(read_records(out / "runs.jsonl"), envs, methods, seeds, budgets)
     summary["failed"] = failed
     write_summary(out, summary)
@@ -275,6 +299,11 @@ def bench_gridworlds(
             if (table := summary[env_id].get("rlvc", {}).get("percept_table"))
         }
     )
+    if failed:  # after what finished is written: the same command runs the rest again
+        raise RunsFailed(
+            f"{len(failed)} of the runs failed: "
+            + "; ".join(f"{f['env_id']} {f['method']}: {last_line(f['error'])}" for f in failed)
+        )
     return summary
 
 
