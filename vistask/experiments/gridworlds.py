@@ -381,15 +381,26 @@ def plot_success(
             if entry is None:
                 continue
             x = [int(b) for b in entry["success"]]
-            ax.plot(x, list(entry["success"].values()), marker="o", label=method)
+            ax.plot(x, list(entry["success"].values()), marker="o", label=method, zorder=3)
             low, high = zip(*entry["interval"].values(), strict=True)
             ax.fill_between(x, low, high, alpha=0.2)
             if "percept_table" in entry:
                 table = entry["percept_table"]
                 x = [int(b) for b in table]
-                ax.plot(x, list(table.values()), "k--", marker=".", label=f"{method} percept table")
+                # Behind the methods' lines, which it often equals.
+                ax.plot(
+                    x,
+                    list(table.values()),
+                    "k--",
+                    marker=".",
+                    alpha=0.5,
+                    zorder=2,
+                    label=f"{method} percept table",
+                )
         ax.axhline(SUCCESS, color="k", linestyle=":", linewidth=0.8)
         ax.set(title=env_id.removeprefix("MiniGrid-"), xscale="log", ylim=(-0.03, 1.03))
+        ax.set_xticks(budgets, [f"{b / 1000:g}k" if b >= 1000 else str(b) for b in budgets])
+        ax.minorticks_off()
         ax.set_xlabel("interactions")
         ax.set_ylabel("greedy success")
     for ax in list(axes.flat)[len(envs) :]:
