@@ -187,7 +187,7 @@ def compare(
         "config": config.params(),
         "oracle_return": oracle_return,
         "budgets": list(config.budgets),
-        "tabular_grid": grid,
+        "tabular_grid": grid if "tabular" in config.methods else None,  # cells a dimension
         "methods": methods,
         "ratios": speedups(methods, config.budgets),
         "statistics": stats,
