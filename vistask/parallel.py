@@ -62,6 +62,12 @@ class Outcome:
 class RunsFailed(RuntimeError):
     """Runs of a script failed: its message gives each one's last error line."""
 
+    @classmethod
+    def of(cls, lines: list[str], every: bool = False) -> RunsFailed:
+        """The error for failed runs, a line each (``every``: no run finished)."""
+        head = "every run failed" if every else f"{len(lines)} of the runs failed"
+        return cls(f"{head}: " + "; ".join(lines))
+
 
 def last_line(error: str) -> str:
     """The line of a traceback text that names the exception (``ValueError: ...``; the first

@@ -64,10 +64,16 @@ class _ImageTransform(Transform):
             return len(vocabulary.image_shape)
         return 3 if shape[-1:] == (3,) else 2
 
+    def _checked_dims(self, shape: Sequence[int], dtype: torch.dtype, what: str) -> int:
+        """The image dims (``_image_dims``) of observations of ``shape`` and ``dtype``, which
+        are refused, naming ``what``, unless they are images of the vocabulary's shape."""
+        dims = self._image_dims(tuple(shape))
+        _check_images(shape, dtype, dims, what)
+        self._check_shape(tuple(shape[-dims:]))
+        return dims
+
     def _images(self, pixels: torch.Tensor) -> tuple[list[np.ndarray], torch.Size]:
-        dims = self._image_dims(tuple(pixels.shape))
-        _check_images(pixels.shape, pixels.dtype, dims, type(self).__name__)
-        self._check_shape(tuple(pixels.shape[-dims:]))
+        dims = self._checked_dims(pixels.shape, pixels.dtype, type(self).__name__)
         return _images(pixels, dims)
 
     def _check_shape(self, shape: tuple) -> None:
@@ -100,10 +106,8 @@ class _ImageTransform(Transform):
         key = self.in_keys[0]
         self._check_key(observation_spec.keys())
         image_spec = observation_spec[key]
-        dims = self._image_dims(tuple(image_spec.shape))
         what = f"{type(self).__name__} (under {key!r})"
-        _check_images(image_spec.shape, image_spec.dtype, dims, what)
-        self._check_shape(tuple(image_spec.shape[-dims:]))
+        dims = self._checked_dims(image_spec.shape, image_spec.dtype, what)
         batch = image_spec.shape[:-dims]
         spec = self._spec(image_spec.device)
         observation_spec[self.out_keys[0]] = spec.expand(*batch, *spec.shape)

@@ -153,7 +153,7 @@ def bench_scale(
 
     map_runs(_fresh_process_run, items, workers, address, record)
     if failed and not done:
-        raise RunsFailed("every run failed: " + "; ".join(failed))
+        raise RunsFailed.of(failed, every=True)
     summary = {"seed": seed}
     for env in envs:
         runs = [done[env, b] for b in sorted(budgets[env]) if (env, b) in done]
@@ -171,7 +171,7 @@ def bench_scale(
     write_summary(out, summary)
     print_scale(summary, out)
     if failed:  # after what finished is written: the same command runs the rest again
-        raise RunsFailed(f"{len(failed)} of the runs failed: " + "; ".join(failed))
+        raise RunsFailed.of(failed)
     return summary
 
 

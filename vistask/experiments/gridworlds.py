@@ -280,8 +280,9 @@ def bench_gridworlds(
             )
 
     map_runs(run_grid, todo, workers, address, finished)
+    lines = [f"{f['env_id']} {f['method']}: {last_line(f['error'])}" for f in failed]
     if failed and not read_records(out / "runs.jsonl"):
-        raise RunsFailed("every run failed: " + "; ".join(last_line(f["error"]) for f in failed))
+        raise RunsFailed.of(lines, every=True)
     summary = summarise(read_records(out / "runs.jsonl"), envs, methods, seeds, budgets)
     summary["failed"] = failed
     write_summary(out, summary)
@@ -300,10 +301,7 @@ def bench_gridworlds(
         }
     )
     if failed:  # after what finished is written: the same command runs the rest again
-        raise RunsFailed(
-            f"{len(failed)} of the runs failed: "
-            + "; ".join(f"{f['env_id']} {f['method']}: {last_line(f['error'])}" for f in failed)
-        )
+        raise RunsFailed.of(lines)
     return summary
 
 
