@@ -94,7 +94,7 @@ class RLVCAgent(VisualAgent):
         min_count: interactions needed on each side of a split (>= 2, default 10).
         max_stages: stage cap of the stages that follow each database (>= 1, default 300).
         epsilon: exploration rate of the epsilon-greedy databases and of
-            ``predict(deterministic=False)`` (in [0, 1], default 0.1).
+            ``predict(deterministic=False)`` (in [0, 1], default 0.2).
         n_envs: episodes collected side by side on the classes, on copies of the env made
             again by ``gym.make`` from its spec (settings changed after ``gym.make`` do
             not reach them) or deep-copied (>= 1, default 128).
@@ -138,7 +138,7 @@ class RLVCAgent(VisualAgent):
         alpha: float = 0.05,
         min_count: int = 10,
         max_stages: int = 300,
-        epsilon: float = 0.1,
+        epsilon: float = 0.2,
         n_envs: int = 128,
         max_blocked: int = MAX_BLOCKED,
         max_keypoints: int = 24,
