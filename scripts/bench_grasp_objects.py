@@ -22,7 +22,7 @@ from pathlib import Path
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
-from vistask.cli import positive_int, ray_address, run_main
+from vistask.cli import add_address, positive_int, run_main
 from vistask.envs.objects import distinct_object_specs
 from vistask.experiments.grasp_objects import bench_grasp_objects
 from vistask.runs import run_dir
@@ -54,7 +54,7 @@ def main() -> None:
         help="held-out placements each evaluation scores (4 evaluations a condition)",
     )
     parser.add_argument("--workers", type=positive_int, default=2, help="simulators at once")
-    parser.add_argument("--address", type=ray_address, default=None, help="a Ray cluster")
+    add_address(parser, "the trials")
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args()
     if args.objects:  # refused before the run folder is made

@@ -15,7 +15,7 @@ interactions allow without visual classes) and success.png.
 
 import argparse
 
-from vistask.cli import non_negative_int, positive_int, ray_address, run_main
+from vistask.cli import add_address, non_negative_int, positive_int, run_main
 from vistask.experiments.gridworlds import BUDGETS, GRIDWORLDS, METHODS, bench_gridworlds
 
 
@@ -30,9 +30,7 @@ def main() -> None:
     parser.add_argument(
         "--workers", type=positive_int, default=None, help="runs side by side (default: cores)"
     )
-    parser.add_argument(
-        "--address", type=ray_address, default=None, help="Ray cluster address, or 'local'"
-    )
+    add_address(parser, "the runs")
     parser.add_argument("--out", default=None, help="run folder; an existing one is resumed")
     args = parser.parse_args()
     bench_gridworlds(

@@ -7,7 +7,7 @@ python scripts/bench_maze_layouts.py --workers 2     # two runs side by side
 
 import argparse
 
-from vistask.cli import non_negative_int, positive_int, ray_address, run_main
+from vistask.cli import add_address, non_negative_int, positive_int, run_main
 from vistask.experiments.maze_layouts import bench_maze_layouts
 
 
@@ -19,9 +19,7 @@ def main() -> None:
     parser.add_argument("--seed", type=non_negative_int, default=0, help="the agent's seed")
     parser.add_argument("--out", default=None, help="default runs/bench_maze_layouts-<time>")
     parser.add_argument("--workers", type=positive_int, default=1, help="runs side by side")
-    parser.add_argument(
-        "--address", type=ray_address, default=None, help="Ray cluster (default: RAY_ADDRESS)"
-    )
+    add_address(parser, "the layouts")
     args = parser.parse_args()
     bench_maze_layouts(
         args.layouts, seed=args.seed, out=args.out, workers=args.workers, address=args.address

@@ -25,7 +25,7 @@ from pathlib import Path
 
 import torch
 
-from vistask.cli import non_negative_int, positive_int, ray_address, run_main, torch_device
+from vistask.cli import add_address, non_negative_int, positive_int, run_main, torch_device
 from vistask.experiments.pose import PoseBenchmark
 from vistask.experiments.pose_scenes import CONDITIONS, METHODS
 from vistask.experiments.pose_summary import write_results
@@ -75,9 +75,7 @@ def main() -> None:
         "--pictures", type=non_negative_int, default=1, help="pictures per object, condition"
     )
     parser.add_argument("--workers", type=positive_int, default=1, help="scenes side by side")
-    parser.add_argument(
-        "--address", type=ray_address, default=None, help="Ray cluster to run the scenes on"
-    )
+    add_address(parser, "the scenes")
     args = parser.parse_args()
     out = run_dir("bench_pose", args.out)
     torch.set_num_threads(args.threads)

@@ -7,7 +7,7 @@ python scripts/bench_scale.py --envs vistask/VisualMaze-v0 --budgets 40000 80000
 
 import argparse
 
-from vistask.cli import non_negative_int, positive_int, ray_address, run_main
+from vistask.cli import add_address, non_negative_int, positive_int, run_main
 from vistask.experiments.bench_scale import ENVS, bench_scale
 
 
@@ -27,7 +27,7 @@ def main() -> None:
     parser.add_argument(
         "--workers", type=positive_int, default=1, help="runs side by side (they share cores)"
     )
-    parser.add_argument("--address", type=ray_address, default=None, help="Ray cluster")
+    add_address(parser, "the budgets")
     parser.add_argument(
         "--out",
         default=None,

@@ -25,10 +25,10 @@ import sys
 import torch
 
 from vistask.cli import (
+    add_address,
     json_object,
     non_negative_int,
     positive_int,
-    ray_address,
     run_main,
     torch_device,
 )
@@ -79,12 +79,7 @@ def main() -> None:
     parser.add_argument(
         "--workers", type=positive_int, default=None, help="runs side by side (default: cores)"
     )
-    parser.add_argument(
-        "--address",
-        type=ray_address,
-        default=None,
-        help="Ray cluster address, or 'local' (default: RAY_ADDRESS, else no Ray)",
-    )
+    add_address(parser, "the runs")
     parser.add_argument("--quick", action="store_true", help="tiny budgets, 2 seeds")
     parser.add_argument(
         "--out",

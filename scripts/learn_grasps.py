@@ -25,12 +25,12 @@ from pathlib import Path
 os.environ.setdefault("MUJOCO_GL", "egl")
 
 from vistask.cli import (
+    add_address,
     check_resume_alone,
     non_negative_float,
     non_negative_int,
     positive_int,
     probability,
-    ray_address,
     run_main,
     stopped_run_settings,
 )
@@ -95,12 +95,7 @@ def main() -> None:
         default=defaults["num_envs"],
         help="simulators side by side",
     )
-    parser.add_argument(
-        "--address",
-        type=ray_address,
-        default=None,
-        help="Ray cluster for the simulators (default: local processes)",
-    )
+    add_address(parser, "the simulators")
     parser.add_argument(
         "--c-rel",
         type=non_negative_float,

@@ -75,3 +75,12 @@ def test_bench_scale_measures_each_budget_once_and_resumes(tmp_path, capsys):
     again = bench_scale(["vistask/VisualMaze-v0"], budgets, out=tmp_path)  # nothing to run
     assert again == summary
     assert len((tmp_path / "runs.jsonl").read_text().splitlines()) == 2
+
+
+def test_one_run_learns_the_same_classes_on_one_and_on_two_threads():
+    from vistask.experiments.bench_parallel import bench_one_run
+
+    rows = bench_one_run((1, 2), interactions=3_000)
+    assert [r["workers"] for r in rows] == [1, 2]
+    assert rows[0]["classes"] > 1
+    assert all(r["same_results"] for r in rows)

@@ -131,6 +131,17 @@ def ray_address(text: str) -> str:
     return text
 
 
+def add_address(parser: argparse.ArgumentParser, runs: str = "the runs") -> None:
+    """``--address``: a Ray cluster for ``runs``; the same option in every script."""
+    parser.add_argument(
+        "--address",
+        type=ray_address,
+        default=None,
+        help=f"a Ray cluster for {runs} ([ray://]host:port, or 'local' for a Ray on this "
+        "machine; default: RAY_ADDRESS, else no Ray)",
+    )
+
+
 @contextmanager
 def restored(signum: int, handler) -> Iterator[None]:
     """Set ``handler`` for signal ``signum`` again when the block ends."""

@@ -104,12 +104,17 @@ def check_not_importing_main(user: str) -> None:
 def one_thread() -> None:
     """Run torch, OpenCV and SIFT's batches on one thread in this process (a worker's setting;
     SIFT's batches follow ``OMP_NUM_THREADS``, which Ray sets in its tasks)."""
+    use_threads(1)
+
+
+def use_threads(n: int) -> None:
+    """Run torch, OpenCV and SIFT's batches on ``n`` threads in this process."""
     import cv2
     import torch
 
-    os.environ["OMP_NUM_THREADS"] = "1"
-    torch.set_num_threads(1)
-    cv2.setNumThreads(1)
+    os.environ["OMP_NUM_THREADS"] = str(n)
+    torch.set_num_threads(n)
+    cv2.setNumThreads(n)
 
 
 def _start_worker(parent: int) -> None:
@@ -133,13 +138,13 @@ def _start_worker(parent: int) -> None:
 
 
 @contextmanager
-def worker_threads() -> Iterator[None]:
-    """This process on one thread, as a worker (``one_thread``), inside the block."""
+def worker_threads(n: int = 1) -> Iterator[None]:
+    """This process on ``n`` threads (``use_threads``; 1: as a worker), inside the block."""
     import cv2
     import torch
 
     saved = torch.get_num_threads(), cv2.getNumThreads(), os.environ.get("OMP_NUM_THREADS")
-    one_thread()
+    use_threads(n)
     try:
         yield
     finally:

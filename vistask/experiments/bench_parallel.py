@@ -1,6 +1,7 @@
-"""Independent runs side by side (``scripts/bench_parallel.py``): the quick comparison with one
-worker and with W worker processes and W Ray workers, and grasp trials in gymnasium's
-``AsyncVectorEnv`` processes and in Ray actors with one and with W workers.
+"""Runs side by side (``scripts/bench_parallel.py``): the quick comparison with one worker and
+with W worker processes and W Ray workers, grasp trials in gymnasium's ``AsyncVectorEnv``
+processes and in Ray actors with one and with W workers, and one RLVC run on one thread and on
+W threads.
 
 Every configuration runs the same work, one configuration after another, so the speed-ups are
 ratios measured in one run; each row also says whether its results equal the one-worker
@@ -15,8 +16,10 @@ import time
 from collections.abc import Sequence
 from pathlib import Path
 
+import gymnasium as gym
 import torch
 
+from vistask.agents import RLVCAgent
 from vistask.experiments.compare import compare
 from vistask.experiments.comparison import Comparison
 from vistask.grasp import demonstration_density, run_trials, scripted_teacher_grasps
@@ -96,10 +99,37 @@ def bench_grasp_trials(
     return rows
 
 
+def bench_one_run(workers: Sequence[int], interactions: int = 40_000) -> list[dict]:
+    """One ``RLVCAgent`` run on the maze (its defaults, seed 0; ``train_rlvc.py``'s run) with
+    torch, OpenCV and SIFT's batches on each thread count: seconds of ``learn``, and whether
+    the classes and their Q equal the fewest threads' run."""
+    rows, reference = [], None
+    for n in workers:
+        with worker_threads(n):
+            agent = RLVCAgent(gym.make("vistask/VisualMaze-v0"), seed=0)
+            t0 = time.perf_counter()
+            agent.learn(interactions)
+            seconds = time.perf_counter() - t0
+        learned = agent.rlvc.n_classes, agent.rlvc.q
+        reference = reference or learned
+        rows.append(
+            {
+                "work": "one RLVC run",
+                "runner": "threads",
+                "workers": n,
+                "seconds": seconds,
+                "classes": learned[0],
+                "same_results": learned[0] == reference[0]
+                and torch.equal(learned[1], reference[1]),
+            }
+        )
+    return rows
+
+
 def bench_parallel(
     workers: Sequence[int] | None = None,
     trials: int = 200,
-    parts: Sequence[str] = ("comparison", "grasps"),
+    parts: Sequence[str] = ("comparison", "grasps", "one_run"),
     out: str | Path | None = None,
 ) -> dict:
     """Run the benchmarks in ``parts``, print the table, write ``summary.json``.
@@ -107,7 +137,7 @@ def bench_parallel(
     Args:
         workers: worker counts (default 1 and all cores); the first is the reference.
         trials: grasp trials per configuration.
-        parts: "comparison" and/or "grasps".
+        parts: any of "comparison", "grasps" and "one_run".
         out: output folder (default ``runs/bench_parallel-<time>``).
     """
     out = run_dir("bench_parallel", out)
@@ -117,6 +147,8 @@ def bench_parallel(
         rows += bench_comparison(workers, out)
     if "grasps" in parts:
         rows += bench_grasp_trials(workers, trials)
+    if "one_run" in parts:
+        rows += bench_one_run(workers)
     for row in rows:  # against the same work on the same runner (or in process), fewest workers
         same = [
             r
