@@ -49,6 +49,11 @@ class SB3Model:
         return None  # the agents read raw observations
 
     @property
+    def _saved_tensorboard_log(self) -> str | None:
+        """``tensorboard_log`` as a saved agent holds it (a string; None: no logging)."""
+        return None if self.tensorboard_log is None else str(self.tensorboard_log)
+
+    @property
     def logger(self) -> StageLogger:
         """SB3's logger of the current ``learn`` call (silent without ``tensorboard_log``)."""
         if self._logger is None:

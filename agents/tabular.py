@@ -210,7 +210,7 @@ class TabularQAgent(SB3Model):
             "rng": self.rng.bit_generator.state,
             "env_identity": self.env_identity,
             "starts": list(self.starts),
-            "tensorboard_log": None if self.tensorboard_log is None else str(self.tensorboard_log),
+            "tensorboard_log": self._saved_tensorboard_log,
         }
 
     def save(self, path: str | Path) -> None:

@@ -572,7 +572,7 @@ class VisualAgent(SB3Model):
             "learner": self.learner.state_dict(),
             "num_timesteps": self.num_timesteps,
             "next_seed": self._next_seed,
-            "tensorboard_log": None if self.tensorboard_log is None else str(self.tensorboard_log),
+            "tensorboard_log": self._saved_tensorboard_log,
         }
 
     @classmethod
