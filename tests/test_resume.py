@@ -372,8 +372,10 @@ def test_a_run_folder_in_use_is_refused_and_a_stop_says_how_to_go_on(tmp_path):
     import sys
 
     script = tmp_path / "hold.py"
+    # A shell that starts the suite in the background leaves SIGINT ignored in its children.
     script.write_text(
-        "import sys, time\n"
+        "import signal, sys, time\n"
+        "signal.signal(signal.SIGINT, signal.default_int_handler)\n"
         "from vistask.cli import run_main\n"
         "from vistask.runs import run_dir\n"
         "def main():\n"
