@@ -61,6 +61,9 @@ class RLJCAgent(VisualAgent):
         max_keypoints: strongest SIFT keypoints kept per percept (0: all; default 24).
         contrast_threshold: SIFT's detection threshold (> 0, default 0.02; lower: more,
             weaker keypoints).
+        enlarge: SIFT runs on each view enlarged this many times, keeping the keypoints whose
+            descriptor lies inside the view (``SiftExtractor``'s ``enlarge``; >= 1, default 1:
+            every view as it is).
         gamma: discount in [0, 1) (default: the env's ``gamma`` attribute, else 0.99).
         tensorboard_log: folder of TensorBoard runs (None, the default: no logging).
         seed: seeds the episodes, the exploration and the vocabulary (default 0).
@@ -82,6 +85,7 @@ class RLJCAgent(VisualAgent):
         max_blocked: int = MAX_BLOCKED,
         max_keypoints: int = 24,
         contrast_threshold: float = 0.02,
+        enlarge: int = 1,
         gamma: float | None = None,
         tensorboard_log: str | Path | None = None,
         seed: int = 0,
@@ -101,6 +105,7 @@ class RLJCAgent(VisualAgent):
             tensorboard_log,
             seed,
             max_blocked,
+            enlarge,
         )
 
     @property

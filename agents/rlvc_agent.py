@@ -106,6 +106,9 @@ class RLVCAgent(VisualAgent):
         max_keypoints: strongest SIFT keypoints kept per percept (0: all; default 24).
         contrast_threshold: SIFT's detection threshold (> 0, default 0.005: low, so that dark
             and smooth views still show keypoints).
+        enlarge: SIFT runs on each view enlarged this many times, keeping the keypoints whose
+            descriptor lies inside the view (``SiftExtractor``'s ``enlarge``): 2 on the maze's
+            32-pixel views (>= 1, default 1: every view as it is).
         compounds: make compound features (two features in a stable spatial relation) for
             the most aliased classes where they split better than a single feature
             (default False).
@@ -143,6 +146,7 @@ class RLVCAgent(VisualAgent):
         max_blocked: int = MAX_BLOCKED,
         max_keypoints: int = 24,
         contrast_threshold: float = 0.005,
+        enlarge: int = 1,
         compounds: bool = False,
         compaction: bool | Compaction = False,
         nearest_seen: bool = False,
@@ -167,6 +171,7 @@ class RLVCAgent(VisualAgent):
             tensorboard_log,
             seed,
             max_blocked,
+            enlarge,
         )
         check_bools(compounds=compounds, nearest_seen=nearest_seen)
         if not isinstance(compaction, Compaction):
@@ -268,7 +273,7 @@ class RLVCAgent(VisualAgent):
         """Saved settings as constructor arguments; files that kept compaction's settings
         beside a bool give them as a ``Compaction``; files without ``novelty`` learned
         without it."""
-        params = {"novelty": 0.0, **params}
+        params = {"novelty": 0.0, **super()._params_from_state(params)}
         legacy = {
             k: params.pop(k)
             for k in ("compact_every", "compaction_tolerance", "structures")

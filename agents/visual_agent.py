@@ -101,6 +101,7 @@ class VisualAgent(SB3Model):
         tensorboard_log: str | Path | None,
         seed: int,
         max_blocked: int = MAX_BLOCKED,
+        enlarge: int = 1,
     ) -> None:
         counts = {
             "n_words": n_words,
@@ -111,11 +112,14 @@ class VisualAgent(SB3Model):
             "max_keypoints": max_keypoints,
             "seed": seed,
             "max_blocked": max_blocked,
+            "enlarge": enlarge,
         }
         check_integers(**counts)
         check_at_least(0, seed=seed, max_blocked=max_blocked)
         check_at_least(2, n_words=n_words, min_count=min_count)
-        check_at_least(1, databases=databases, max_stages=max_stages, n_envs=n_envs)
+        check_at_least(
+            1, databases=databases, max_stages=max_stages, n_envs=n_envs, enlarge=enlarge
+        )
         check_at_least(0, max_keypoints=max_keypoints)
         if not contrast_threshold > 0:
             raise ValueError(f"contrast_threshold must be > 0, got {contrast_threshold!r}")
@@ -138,6 +142,7 @@ class VisualAgent(SB3Model):
         self.alpha, self.min_count, self.max_stages = float(alpha), int(min_count), max_stages
         self.epsilon, self.n_envs, self.max_keypoints = float(epsilon), n_envs, max_keypoints
         self.contrast_threshold = float(contrast_threshold)
+        self.enlarge = int(enlarge)
         self.gamma, self.seed, self.max_blocked = float(gamma), int(seed), int(max_blocked)
         self.tensorboard_log = tensorboard_log
         self.vocabulary_groups = VOCABULARY_GROUPS
@@ -184,8 +189,9 @@ class VisualAgent(SB3Model):
 
     @classmethod
     def _params_from_state(cls, params: dict) -> dict:
-        """The constructor arguments of a saved file's settings."""
-        return params
+        """The constructor arguments of a saved file's settings; files without ``enlarge``
+        saw every view as it is."""
+        return {"enlarge": 1, **params}
 
     # -- env --------------------------------------------------------------------------------
     def set_env(self, env: gym.Env) -> None:
@@ -428,7 +434,10 @@ class VisualAgent(SB3Model):
         the learner made; the keypoints detected."""
         panel_widths = getattr(self.env.unwrapped, "panel_widths", ())
         keypoints = SiftExtractor(
-            self.contrast_threshold, self.max_keypoints, panel_widths=panel_widths
+            self.contrast_threshold,
+            self.max_keypoints,
+            panel_widths=panel_widths,
+            enlarge=self.enlarge,
         )
         progress.phase("SIFT")
         percepts, detected = transitions.percepts, []
@@ -561,6 +570,7 @@ class VisualAgent(SB3Model):
                 "gamma": self.gamma,
                 "seed": self.seed,
                 "max_blocked": self.max_blocked,
+                "enlarge": self.enlarge,
                 **self._extra_params(),
             },
             "observation_shape": list(self.observation_space.shape),

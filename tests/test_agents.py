@@ -131,6 +131,19 @@ def test_agent_save_load_round_trip_gives_identical_classes(small_agent, tmp_pat
         RLVCAgent.load(tmp_path / "agent.pt").learn(1000)
 
 
+def test_an_agent_on_enlarged_views_keeps_them_when_saved(tmp_path):
+    agent = RLVCAgent(small_maze(), n_words=64, n_envs=8, enlarge=2, seed=0).learn(1000)
+    assert agent.extractor.keypoints.enlarge == 2
+    agent.save(tmp_path / "agent.pt")
+    loaded = RLVCAgent.load(tmp_path / "agent.pt")
+    assert loaded.enlarge == loaded.extractor.keypoints.enlarge == 2
+    maze = VisualMazeEnv(**SMALL)
+    images = np.stack([maze.percept_at(p) for p in start_positions(maze.geometry, 30)])
+    assert np.array_equal(loaded.predict(images)[0], agent.predict(images)[0])
+    # Files saved before ``enlarge`` existed saw every view as it is.
+    assert RLVCAgent._params_from_state({"seed": 0})["enlarge"] == 1
+
+
 def test_load_refuses_other_spaces_and_bad_files(small_agent, tmp_path):
     path = tmp_path / "agent.pt"
     small_agent.save(path)

@@ -85,6 +85,7 @@ def test_tabular_hyperparameters_out_of_range_are_refused(kwargs, name):
         ("learn_grasps.py", ["--reliability", "-1"], "--reliability"),
         ("bench_grasp_objects.py", ["--trials", "0"], "--trials"),
         ("bench_features.py", ["--words", "0"], "--words"),
+        ("bench_keypoints.py", ["--views", "0"], "--views"),
         ("compare_baselines.py", ["--seeds", "0"], "--seeds"),
         ("compare_baselines.py", ["--workers", "0"], "--workers"),
         ("bench_pose.py", ["--pictures", "-2"], "--pictures"),

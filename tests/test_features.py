@@ -9,7 +9,9 @@ import pytest
 import torch
 
 from vistask.envs import VisualMazeEnv
+from vistask.experiments.bench_keypoints import bench_keypoints, stay_put
 from vistask.features import SiftExtractor, VisualFeatureExtractor
+from vistask.features.keypoints import SUPPORT_RADIUS
 from vistask.features.vocabulary import SMALL_BATCH, CoarseGroups, grouped_kmeans
 from vistask.kmeans import kmeans
 
@@ -54,6 +56,34 @@ def test_batch_extraction_equals_one_by_one(percepts):
     for kps, other in zip(batch, reversed(again), strict=True):
         np.testing.assert_array_equal(kps.xy, other.xy)
         np.testing.assert_array_equal(kps.descriptors, other.descriptors)
+
+
+def test_an_enlarged_small_view_shows_keypoints_that_stay_put_as_it_moves(percepts):
+    enlarged = SiftExtractor(0.005, 24, threads=1, enlarge=2)
+    tapestry = VisualMazeEnv().tapestry
+    staying = [
+        stay_put(e, tapestry, window=32, views=30, shift=4, seed=0)["stay_put_per_view"]
+        for e in (SiftExtractor(0.005, 24, threads=1), enlarged)
+    ]
+    assert staying[1] > 2 * staying[0]
+    for percept in percepts[:20]:  # every descriptor lies inside the view
+        kps = enlarged(percept)
+        room = np.minimum(kps.xy, 64 - kps.xy).min(axis=1)
+        assert 0 < len(kps) <= 24 and (room >= SUPPORT_RADIUS * kps.scale).all()
+    strongest = SiftExtractor(0.005, 0, enlarge=2)(percepts[0])
+    assert len(strongest) > 24 and len(enlarged(percepts[0])) == 24
+    with pytest.raises(ValueError, match="enlarge"):
+        SiftExtractor(enlarge=0)
+    with pytest.raises(TypeError, match="enlarge"):
+        SiftExtractor(enlarge=1.5)
+
+
+def test_bench_keypoints_writes_its_table_and_plot(tmp_path):
+    summary = bench_keypoints((32,), (1, 2), views=10, out=tmp_path)
+    assert (tmp_path / "summary.json").exists() and (tmp_path / "stay_put.png").exists()
+    figures = summary["32"]
+    assert figures["2"]["stay_put_per_view"] > figures["1"]["stay_put_per_view"]
+    assert 0 <= figures["1"]["stay_put_share"] <= 1
 
 
 def test_extraction_threads_follow_the_cpus_ray_gives_a_task(monkeypatch):

@@ -18,12 +18,16 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from vistask.checks import check_at_least, checked
+from vistask.checks import check_at_least, check_integers, checked
 
 SIFT_NORM = 512.0  # OpenCV scales SIFT descriptors to about this Euclidean norm
 # Distinct views whose keypoints ``SiftExtractor`` keeps when percepts are made of views: about
 # 13 kB each at 24 keypoints; the mountain car shows 1528 distinct views in 44,000 percepts.
 VIEW_CACHE = 10_000
+# OpenCV's SIFT descriptor samples gradients up to about 4 keypoint sizes from its centre
+# (3 x sigma a bin, 4 + 1 bins across, sigma half the size); closer to the view's edge it
+# reads pixels that change as the view moves.
+SUPPORT_RADIUS = 4.0
 
 
 @checked
@@ -168,6 +172,10 @@ class SiftExtractor:
             Each distinct view is extracted once and remembered (up to ``VIEW_CACHE`` views):
             a view recurs far more often than the whole percept (the mountain car's road
             window shows 641 distinct views and its gauge 887 in a run's 44,000 percepts).
+        enlarge: SIFT runs on each view enlarged this many times (bilinear), which finds the
+            finer details of small views; an enlarged view keeps only the keypoints whose
+            descriptor lies inside it (``SUPPORT_RADIUS`` sizes from its edges), as the others
+            change as the view moves. Default 1: the view as it is, every keypoint.
     """
 
     def __init__(
@@ -177,9 +185,12 @@ class SiftExtractor:
         color_weight: float = 0.0,
         threads: int | None = None,
         panel_widths: Sequence[int] = (),
+        enlarge: int = 1,
     ) -> None:
         if contrast_threshold <= 0 or max_keypoints < 0 or color_weight < 0:
             raise ValueError("contrast_threshold must be > 0, max_keypoints and color_weight >= 0")
+        check_integers(enlarge=enlarge)
+        check_at_least(1, enlarge=enlarge)
         if any(not isinstance(w, int | np.integer) or w < 1 for w in panel_widths):
             raise ValueError(f"panel_widths must be positive integers, got {panel_widths!r}")
         self.contrast_threshold = float(contrast_threshold)
@@ -189,6 +200,7 @@ class SiftExtractor:
             check_at_least(1, threads=threads)
         self.threads = threads or _allowed_threads()
         self.panel_widths = tuple(int(w) for w in panel_widths)
+        self.enlarge = int(enlarge)
         self._edges = np.cumsum((0, *self.panel_widths))  # the views' left and right edges
         self._local = threading.local()
         self._pool: ThreadPoolExecutor | None = None
@@ -211,18 +223,22 @@ class SiftExtractor:
 
     def config(self) -> dict:
         """Constructor arguments that change the output (saved with vocabularies)."""
-        return {
+        config = {
             "contrast_threshold": self.contrast_threshold,
             "max_keypoints": self.max_keypoints,
             "color_weight": self.color_weight,
             "panel_widths": self.panel_widths,
         }
+        # Only when set: vocabularies saved before it existed keep their fingerprint.
+        return config if self.enlarge == 1 else {**config, "enlarge": self.enlarge}
 
     def _sift(self) -> cv2.SIFT:
         # One detector per thread: OpenCV objects are not documented as thread-safe.
         if not hasattr(self._local, "sift"):
+            # An enlarged view drops keypoints before keeping the strongest: it counts them itself.
+            strongest = self.max_keypoints if self.enlarge == 1 else 0
             self._local.sift = cv2.SIFT_create(
-                nfeatures=self.max_keypoints, contrastThreshold=self.contrast_threshold
+                nfeatures=strongest, contrastThreshold=self.contrast_threshold
             )
         return self._local.sift
 
@@ -235,16 +251,40 @@ class SiftExtractor:
     def _detect(self, image: np.ndarray) -> tuple[Keypoints, np.ndarray]:
         """Keypoints of one checked image, and their SIFT responses (K,)."""
         grey = image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_RGB2GRAY)
-        points, descriptors = self._sift().detectAndCompute(grey, None)
-        if descriptors is None:
+        if self.enlarge == 1:
+            points, descriptors = self._sift().detectAndCompute(grey, None)
+        else:
+            points, descriptors = self._detect_enlarged(grey)
+        if descriptors is None or not len(points):
             empty, none = np.zeros((0, self.descriptor_size), np.float32), np.zeros(0, np.float32)
             return Keypoints(np.zeros((0, 2), np.float32), empty, none), none
-        xy = np.array([p.pt for p in points], np.float32).reshape(-1, 2)
-        scale = np.array([p.size for p in points], np.float32)
+        xy = np.array([p.pt for p in points], np.float32).reshape(-1, 2) / self.enlarge
+        scale = np.array([p.size for p in points], np.float32) / self.enlarge
         if self.color_weight > 0:
             descriptors = np.hstack([descriptors, self._chromaticity(image, xy)])
         keypoints = Keypoints(xy, descriptors.astype(np.float32, copy=False), scale)
         return keypoints, np.array([p.response for p in points], np.float32)
+
+    def _detect_enlarged(self, grey: np.ndarray) -> tuple[list, np.ndarray | None]:
+        """SIFT's keypoints (in the enlarged view's pixels) and descriptors of the grey view
+        enlarged ``enlarge`` times: those whose descriptor lies inside, the strongest first."""
+        h, w = grey.shape
+        size = (w * self.enlarge, h * self.enlarge)
+        big = cv2.resize(grey, size, interpolation=cv2.INTER_LINEAR)
+        sift = self._sift()
+        points = sift.detect(big, None)
+        inside = [
+            p
+            for p in points
+            if min(p.pt[0], p.pt[1], big.shape[1] - p.pt[0], big.shape[0] - p.pt[1])
+            >= SUPPORT_RADIUS * p.size
+        ]
+        inside.sort(key=lambda p: -p.response)  # stable: ties keep SIFT's order
+        if self.max_keypoints:
+            inside = inside[: self.max_keypoints]
+        if not inside:
+            return [], None
+        return sift.compute(big, inside)
 
     def _chromaticity(self, image: np.ndarray, xy: np.ndarray) -> np.ndarray:
         """(K, 2) mean (r, g) chromaticity in a 7x7 box at each keypoint, scaled to SIFT's norm."""
