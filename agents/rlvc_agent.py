@@ -107,8 +107,8 @@ class RLVCAgent(VisualAgent):
         contrast_threshold: SIFT's detection threshold (> 0, default 0.005: low, so that dark
             and smooth views still show keypoints).
         enlarge: SIFT runs on each view enlarged this many times, keeping the keypoints whose
-            descriptor lies inside the view (``SiftExtractor``'s ``enlarge``): 2 on the maze's
-            32-pixel views (>= 1, default 1: every view as it is).
+            descriptor lies inside the view (``SiftExtractor``'s ``enlarge``): 2 for small
+            views of photographs (>= 1, default 1: every view as it is).
         compounds: make compound features (two features in a stable spatial relation) for
             the most aliased classes where they split better than a single feature
             (default False).
