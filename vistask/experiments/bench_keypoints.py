@@ -71,14 +71,17 @@ def bench_keypoints(
     """
     out = run_dir("bench_keypoints", out)
     tapestry = VisualMazeEnv().tapestry
+    agent = RLVCAgent(None)  # its SIFT settings
+    extractors = {
+        factor: SiftExtractor(
+            agent.contrast_threshold, agent.max_keypoints, threads=1, enlarge=factor
+        )
+        for factor in enlarge
+    }
     summary: dict = {"views": views, "shift_pixels": shift, "seed": seed}
     for window in windows:
         summary[str(window)] = {}
-        for factor in enlarge:
-            agent = RLVCAgent(None, enlarge=factor)
-            extractor = SiftExtractor(
-                agent.contrast_threshold, agent.max_keypoints, threads=1, enlarge=factor
-            )
+        for factor, extractor in extractors.items():
             figures = stay_put(extractor, tapestry, window, views, shift, seed)
             summary[str(window)][str(factor)] = figures
             print_table(figures, f"window {window} px, enlarged {factor} times")
