@@ -62,8 +62,10 @@ class RLJCAgent(VisualAgent):
         contrast_threshold: SIFT's detection threshold (> 0, default 0.02; lower: more,
             weaker keypoints).
         enlarge: SIFT runs on each view enlarged this many times, keeping the keypoints whose
-            descriptor lies inside the view (``SiftExtractor``'s ``enlarge``; >= 1, default 1:
-            every view as it is).
+            descriptor lies inside the view (``SiftExtractor``'s ``enlarge``; >= 1), or
+            ``"auto"`` (the default): 2 where the views are under 48 pixels on a side and
+            keep at least as many keypoints enlarged (``choose_enlarge``, on the first
+            database's views), else 1.
         gamma: discount in [0, 1) (default: the env's ``gamma`` attribute, else 0.99).
         tensorboard_log: folder of TensorBoard runs (None, the default: no logging).
         seed: seeds the episodes, the exploration and the vocabulary (default 0).
@@ -85,7 +87,7 @@ class RLJCAgent(VisualAgent):
         max_blocked: int = MAX_BLOCKED,
         max_keypoints: int = 24,
         contrast_threshold: float = 0.02,
-        enlarge: int = 1,
+        enlarge: int | str = "auto",
         gamma: float | None = None,
         tensorboard_log: str | Path | None = None,
         seed: int = 0,

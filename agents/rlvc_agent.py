@@ -107,8 +107,10 @@ class RLVCAgent(VisualAgent):
         contrast_threshold: SIFT's detection threshold (> 0, default 0.005: low, so that dark
             and smooth views still show keypoints).
         enlarge: SIFT runs on each view enlarged this many times, keeping the keypoints whose
-            descriptor lies inside the view (``SiftExtractor``'s ``enlarge``): 2 for small
-            views of photographs (>= 1, default 1: every view as it is).
+            descriptor lies inside the view (``SiftExtractor``'s ``enlarge``; >= 1), or
+            ``"auto"`` (the default): 2 where the views are under 48 pixels on a side and
+            keep at least as many keypoints enlarged (``choose_enlarge``, on the first
+            database's views), else 1.
         compounds: make compound features (two features in a stable spatial relation) for
             the most aliased classes where they split better than a single feature
             (default False).
@@ -146,7 +148,7 @@ class RLVCAgent(VisualAgent):
         max_blocked: int = MAX_BLOCKED,
         max_keypoints: int = 24,
         contrast_threshold: float = 0.005,
-        enlarge: int = 1,
+        enlarge: int | str = "auto",
         compounds: bool = False,
         compaction: bool | Compaction = False,
         nearest_seen: bool = False,

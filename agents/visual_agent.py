@@ -27,7 +27,7 @@ from vistask.checks import (
     env_identity,
     warn,
 )
-from vistask.features import SiftExtractor, VisualFeatureExtractor
+from vistask.features import SiftExtractor, VisualFeatureExtractor, choose_enlarge
 from vistask.features.vocabulary import CACHE_SIZE, VOCABULARY_GROUPS
 from vistask.rlvc import (
     InteractionDatabase,
@@ -101,7 +101,7 @@ class VisualAgent(SB3Model):
         tensorboard_log: str | Path | None,
         seed: int,
         max_blocked: int = MAX_BLOCKED,
-        enlarge: int = 1,
+        enlarge: int | str = "auto",
     ) -> None:
         counts = {
             "n_words": n_words,
@@ -112,14 +112,17 @@ class VisualAgent(SB3Model):
             "max_keypoints": max_keypoints,
             "seed": seed,
             "max_blocked": max_blocked,
-            "enlarge": enlarge,
         }
         check_integers(**counts)
         check_at_least(0, seed=seed, max_blocked=max_blocked)
         check_at_least(2, n_words=n_words, min_count=min_count)
-        check_at_least(
-            1, databases=databases, max_stages=max_stages, n_envs=n_envs, enlarge=enlarge
-        )
+        check_at_least(1, databases=databases, max_stages=max_stages, n_envs=n_envs)
+        if isinstance(enlarge, str):
+            if enlarge != "auto":
+                raise ValueError(f"enlarge must be 'auto' or an integer >= 1, got {enlarge!r}")
+        else:
+            check_integers(enlarge=enlarge)
+            check_at_least(1, enlarge=enlarge)
         check_at_least(0, max_keypoints=max_keypoints)
         if not contrast_threshold > 0:
             raise ValueError(f"contrast_threshold must be > 0, got {contrast_threshold!r}")
@@ -142,7 +145,7 @@ class VisualAgent(SB3Model):
         self.alpha, self.min_count, self.max_stages = float(alpha), int(min_count), max_stages
         self.epsilon, self.n_envs, self.max_keypoints = float(epsilon), n_envs, max_keypoints
         self.contrast_threshold = float(contrast_threshold)
-        self.enlarge = int(enlarge)
+        self.enlarge = enlarge if isinstance(enlarge, str) else int(enlarge)
         self.gamma, self.seed, self.max_blocked = float(gamma), int(seed), int(max_blocked)
         self.tensorboard_log = tensorboard_log
         self.vocabulary_groups = VOCABULARY_GROUPS
@@ -433,14 +436,16 @@ class VisualAgent(SB3Model):
         """SIFT on the first chunk's percepts, the vocabulary fitted on their descriptors and
         the learner made; the keypoints detected."""
         panel_widths = getattr(self.env.unwrapped, "panel_widths", ())
-        keypoints = SiftExtractor(
-            self.contrast_threshold,
-            self.max_keypoints,
-            panel_widths=panel_widths,
-            enlarge=self.enlarge,
-        )
-        progress.phase("SIFT")
         percepts, detected = transitions.percepts, []
+        progress.phase("SIFT")
+        enlarge = self.enlarge
+        if enlarge == "auto":
+            enlarge = choose_enlarge(
+                percepts, self.contrast_threshold, self.max_keypoints, panel_widths
+            )
+        keypoints = SiftExtractor(
+            self.contrast_threshold, self.max_keypoints, panel_widths=panel_widths, enlarge=enlarge
+        )
         for start in range(0, len(percepts), SIFT_CHUNK):
             detected += keypoints.batch(percepts[start : start + SIFT_CHUNK])
             progress.show(sift=f"{len(detected)}/{len(percepts)}")

@@ -142,6 +142,15 @@ def test_an_agent_on_enlarged_views_keeps_them_when_saved(tmp_path):
     assert np.array_equal(loaded.predict(images)[0], agent.predict(images)[0])
     # Files saved before ``enlarge`` existed saw every view as it is.
     assert RLVCAgent._params_from_state({"seed": 0})["enlarge"] == 1
+    # By default ("auto") views under 48 pixels of a photograph are enlarged, and the
+    # decision is the saved vocabulary's.
+    small_views = gym.make("vistask/VisualMaze-v0", **{**SMALL, "window": 32})
+    auto = RLVCAgent(small_views, n_words=64, n_envs=8, seed=0).learn(1000)
+    assert auto.enlarge == "auto" and auto.extractor.keypoints.enlarge == 2
+    auto.save(tmp_path / "auto.pt")
+    assert RLVCAgent.load(tmp_path / "auto.pt").extractor.keypoints.enlarge == 2
+    with pytest.raises(ValueError, match="enlarge must be 'auto' or an integer >= 1"):
+        RLVCAgent(small_maze(), enlarge="big")
 
 
 def test_load_refuses_other_spaces_and_bad_files(small_agent, tmp_path):
@@ -356,7 +365,7 @@ def test_train_rlvc_writes_a_summary_that_its_saved_agent_reproduces(tmp_path):
     on_disk = json.loads((tmp_path / "summary.json").read_text())
     for key in ("return_ratio", "rlvc_return", "oracle_return", "stages", "classes"):
         assert on_disk[key] == pytest.approx(summary[key])
-    assert summary["interactions"] == 2000
+    assert summary["interactions"] == 2000 and summary["enlarge"] == 1  # 64-pixel views
     assert summary["selected_features"] <= summary["classes"] - 1  # a test per internal node
     assert summary["return_ratio"] == pytest.approx(
         summary["rlvc_return"] / summary["oracle_return"]

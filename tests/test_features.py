@@ -4,16 +4,18 @@ import os
 import pickle
 
 import cv2
+import gymnasium as gym
 import numpy as np
 import pytest
 import torch
 
 from vistask.envs import VisualMazeEnv
 from vistask.experiments.bench_keypoints import bench_keypoints, stay_put
-from vistask.features import SiftExtractor, VisualFeatureExtractor
+from vistask.features import SiftExtractor, VisualFeatureExtractor, choose_enlarge
 from vistask.features.keypoints import SUPPORT_RADIUS
 from vistask.features.vocabulary import SMALL_BATCH, CoarseGroups, grouped_kmeans
 from vistask.kmeans import kmeans
+from vistask.rlvc import collect
 
 
 @pytest.fixture(scope="module")
@@ -76,6 +78,21 @@ def test_an_enlarged_small_view_shows_keypoints_that_stay_put_as_it_moves(percep
         SiftExtractor(enlarge=0)
     with pytest.raises(TypeError, match="enlarge"):
         SiftExtractor(enlarge=1.5)
+
+
+def test_auto_enlarges_small_photo_views_but_not_smooth_rendered_ones():
+    def views(env_id: str, **kwargs) -> list[np.ndarray]:
+        return collect(gym.make(env_id, **kwargs), 300, seed=0).percepts
+
+    assert choose_enlarge(views("vistask/VisualMaze-v0", window=32), 0.005, 24) == 2
+    # Place navigation's rendered rooms show fewer keypoints enlarged at its threshold.
+    small_rooms = views("vistask/PlaceNavigation-v0", image_size=32, views_per_state=2)
+    assert choose_enlarge(small_rooms, 0.02, 24) == 1
+    # Views of 48 pixels or more, or of a panel that wide, are taken as they are.
+    assert choose_enlarge(views("vistask/VisualMaze-v0", window=48), 0.005, 24) == 1
+    car = gym.make("vistask/VisualMountainCar-v0")
+    panels = car.unwrapped.panel_widths  # the road and the gauge, 96 pixels each
+    assert choose_enlarge(collect(car, 300, seed=0).percepts, 0.005, 24, panels) == 1
 
 
 def test_bench_keypoints_writes_its_table_and_plot(tmp_path):

@@ -27,7 +27,7 @@ from vistask.experiments.hyperparams import agent_kwargs, hyperparams_for
 from vistask.experiments.tasks import task_for
 from vistask.experiments.train_rlvc import agent_policy
 from vistask.memory import PeakMemory
-from vistask.parallel import RunsFailed, last_line, map_runs
+from vistask.parallel import RunsFailed, last_line, map_runs, worker_threads
 from vistask.rlvc import collect
 from vistask.runs import append_record, check_same_settings, read_records, run_dir, write_summary
 
@@ -49,18 +49,23 @@ PREDICT_BATCHES = 20
 
 
 def predict_ms_per_percept(agent: RLVCAgent, env: gym.Env, seed: int) -> float:
-    """Milliseconds a percept of ``agent.predict`` on batches of 64 views it never saw (fresh
-    episodes), keypoints and words included (the extractor's cache emptied before each)."""
+    """Milliseconds a percept of ``agent.predict`` on one core, on batches of 64 views it never
+    saw (fresh episodes), keypoints and words included (the extractor's cache emptied before
+    each)."""
     views = collect(env, PREDICT_BATCH * PREDICT_BATCHES, seed=10**6 + seed).percepts
     extractor, seconds = agent.extractor, 0.0
+    one_core = copy.copy(extractor.keypoints)  # SIFT's batches in this thread
+    one_core.threads = 1
     # A blocked move adds no percept: the batches are those the views fill.
     starts = range(0, len(views) - PREDICT_BATCH + 1, PREDICT_BATCH)
-    for start in starts:
-        agent.extractor = copy.copy(extractor)  # a copy starts with an empty cache
-        batch = np.stack(views[start : start + PREDICT_BATCH])
-        t0 = time.perf_counter()
-        agent.predict(batch)
-        seconds += time.perf_counter() - t0
+    with worker_threads(1):
+        for start in starts:
+            agent.extractor = copy.copy(extractor)  # a copy starts with an empty cache
+            agent.extractor.keypoints = one_core
+            batch = np.stack(views[start : start + PREDICT_BATCH])
+            t0 = time.perf_counter()
+            agent.predict(batch)
+            seconds += time.perf_counter() - t0
     agent.extractor = extractor
     return 1e3 * seconds / (PREDICT_BATCH * len(starts))
 

@@ -414,6 +414,7 @@ def train_rlvc(
         "structures": agent.structures,
         "vocabulary_size": agent.extractor.n_features,
         "vocabulary_groups": agent.vocabulary_groups,
+        "enlarge": agent.extractor.keypoints.enlarge,  # what "auto" chose
         "interactions": agent.num_timesteps,
         "rewards_seen": agent.rewards_seen,
         "eval_starts": eval_starts,

@@ -102,7 +102,7 @@ def _agent_cases() -> Iterator[Case]:
         "epsilon": (-0.1, 1.5),
         "n_envs": (0,),
         "max_keypoints": (-1,),
-        "enlarge": (0, -2),
+        "enlarge": (0, -2, 1.7, True, "big"),
         "contrast_threshold": (0.0, -1.0, math.inf),
         "vocabulary_groups": (0, -3),
         "novelty": (-0.1, math.nan, math.inf),

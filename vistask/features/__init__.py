@@ -8,7 +8,13 @@ from vistask.features.compounds import (
     draw_compound,
     propose,
 )
-from vistask.features.keypoints import Keypoints, SiftExtractor, check_image, check_image_space
+from vistask.features.keypoints import (
+    Keypoints,
+    SiftExtractor,
+    check_image,
+    check_image_space,
+    choose_enlarge,
+)
 from vistask.features.vocabulary import VisualFeatureExtractor
 
 __all__ = [
@@ -20,6 +26,7 @@ __all__ = [
     "add_compound_occurrences",
     "check_image",
     "check_image_space",
+    "choose_enlarge",
     "draw_compound",
     "propose",
 ]

@@ -28,6 +28,11 @@ VIEW_CACHE = 10_000
 # (3 x sigma a bin, 4 + 1 bins across, sigma half the size); closer to the view's edge it
 # reads pixels that change as the view moves.
 SUPPORT_RADIUS = 4.0
+# Views whose shorter side is under this many pixels are enlarged twice by ``choose_enlarge``
+# (``enlarge="auto"``) where that keeps at least as many keypoints.
+SMALL_VIEW = 48
+# Views of a first database that ``choose_enlarge`` counts keypoints on, evenly spaced.
+ENLARGE_SAMPLE = 256
 
 
 @checked
@@ -351,3 +356,33 @@ class SiftExtractor:
         finally:
             cv2.setNumThreads(opencv_threads)
         return [result for part in parts for result in part]
+
+
+def choose_enlarge(
+    views: Sequence[np.ndarray],
+    contrast_threshold: float,
+    max_keypoints: int,
+    panel_widths: Sequence[int] = (),
+) -> int:
+    """The ``enlarge`` that ``"auto"`` means for these views: 2 where their shorter side (of
+    each panel, with ``panel_widths``) is under ``SMALL_VIEW`` pixels and ``ENLARGE_SAMPLE`` of
+    them, evenly spaced, keep at least as many keypoints a view enlarged twice as they are;
+    else 1 (smooth views keep fewer keypoints enlarged).
+
+    Example:
+        >>> choose_enlarge(first_database_percepts, 0.005, 24)  # 32 x 32 photo views
+        2
+    """
+    height, width = np.asarray(views[0]).shape[:2]
+    if min(height, *(panel_widths or (width,))) >= SMALL_VIEW:
+        return 1
+    picked = np.linspace(0, len(views) - 1, min(ENLARGE_SAMPLE, len(views))).astype(int)
+    sample = [views[i] for i in picked]
+
+    def kept(factor: int) -> float:
+        sift = SiftExtractor(
+            contrast_threshold, max_keypoints, panel_widths=panel_widths, enlarge=factor
+        )
+        return float(np.mean([len(k) for k in sift.batch(sample)]))
+
+    return 2 if kept(2) >= kept(1) else 1
