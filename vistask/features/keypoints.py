@@ -358,6 +358,7 @@ class SiftExtractor:
         return [result for part in parts for result in part]
 
 
+@checked
 def choose_enlarge(
     views: Sequence[np.ndarray],
     contrast_threshold: float,
