@@ -123,7 +123,7 @@ class RLJCAgent(VisualAgent):
             space.high.tolist(),
             self.gamma,
             self.alpha,
-            self.min_count,
+            self.split_count,
         )
 
     def _greedy(self, presence: torch.Tensor) -> np.ndarray:

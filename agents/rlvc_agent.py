@@ -61,7 +61,7 @@ class RLVCAgent(VisualAgent):
     ``learn(total_timesteps)`` collects ``databases`` equal databases of interactions, the
     first with uniformly random actions, each later one epsilon-greedily on the classes
     learned so far, each added to the earlier ones. While the rewards met are too few for a
-    split (``min_count``), the classes that collect a database learn on the env's rewards
+    split (``split_count``), the classes that collect a database learn on the env's rewards
     plus a bonus for reaching percepts rarely met (``novelty``), so that the collection
     explores where the agent knows least; the classes that act learn on the env's rewards.
     After each database, RLVC stages run until no class splits (or ``max_stages``): classes
@@ -91,7 +91,9 @@ class RLVCAgent(VisualAgent):
         databases: equal databases that ``total_timesteps`` is split into (>= 1, default 4).
         alpha: significance level of the Welch t-test that accepts a split (in (0, 1),
             default 0.05).
-        min_count: interactions needed on each side of a split (>= 2, default 10).
+        min_count: interactions needed on each side of a split (>= 2), or ``"auto"`` (the
+            default): 5 where SIFT sees the views enlarged (``enlarge``), else 10
+            (``split_count`` holds the number in use).
         max_stages: stage cap of the stages that follow each database (>= 1, default 300).
         epsilon: exploration rate of the epsilon-greedy databases and of
             ``predict(deterministic=False)`` (in [0, 1], default 0.2).
@@ -125,7 +127,7 @@ class RLVCAgent(VisualAgent):
             in compound features, so fewer groups make coarser parts (>= 1, default 64; at
             most n_words are used).
         novelty: weight of the novelty bonus that the classes collecting the next database
-            learn on while fewer than ``min_count`` interactions were rewarded, a share of
+            learn on while fewer than ``split_count`` interactions were rewarded, a share of
             the largest reward met (1 before any) (>= 0, default 0.01; 0: epsilon-greedy on
             the env's rewards only).
         gamma: discount in [0, 1) (default: the env's ``gamma`` attribute, else 0.99).
@@ -141,7 +143,7 @@ class RLVCAgent(VisualAgent):
         n_words: int = 8192,
         databases: int = 4,
         alpha: float = 0.05,
-        min_count: int = 10,
+        min_count: int | str = "auto",
         max_stages: int = 300,
         epsilon: float = 0.2,
         n_envs: int = 128,
@@ -217,7 +219,7 @@ class RLVCAgent(VisualAgent):
             int(self.action_space.n),
             self.gamma,
             self.alpha,
-            self.min_count,
+            self.split_count,
             use_compounds=self.compounds,
             compaction=self.compaction is not None,
             compact_every=settings.every,
@@ -236,13 +238,13 @@ class RLVCAgent(VisualAgent):
     @contextmanager
     def _exploring(self, to_collect: int) -> Iterator[None]:
         """While the database holds fewer rewarded interactions than a split needs on one side
-        (``min_count``), the classes that collect the next database learn on the env's
+        (``split_count``), the classes that collect the next database learn on the env's
         rewards plus the novelty bonus of each interaction's successor (``novelty_bonus``),
         scaled by ``novelty`` and the largest reward met (1 before any): the collection heads
         for percepts rarely met. Otherwise, and for the classes that act when learning ends,
         the env's rewards alone."""
         db = self.database
-        if not self.novelty or to_collect == 0 or self.rewards_seen >= self.min_count:
+        if not self.novelty or to_collect == 0 or self.rewards_seen >= self.split_count:
             yield
             return
         rewards = db.rewards

@@ -20,6 +20,7 @@ from vistask.agents.progress import LearnProgress
 from vistask.agents.sb3_model import SB3Model
 from vistask.checks import (
     check_at_least,
+    check_auto_or_integer,
     check_discount,
     check_integers,
     check_same_env,
@@ -41,6 +42,9 @@ from vistask.rlvc.split import CELL_BYTES, TABLE_CELLS
 from vistask.saving import load_state, save_state
 
 MAX_BLOCKED = 2  # default: an exploring episode ends after this many unchanged views in a row
+# What min_count="auto" means: interactions a split needs on each side, on views as they are
+# and on enlarged views (see ``VisualAgent.split_count``).
+MIN_COUNT, ENLARGED_MIN_COUNT = 10, 5
 VOCABULARY_SAMPLE = 20_000  # descriptors that k-means fits the vocabulary on
 SIFT_CHUNK = 1024  # percepts of the first database extracted between two bar updates
 PERCEPTS_PER_CHUNK = 16_384  # images a database holds at once while it is collected
@@ -91,7 +95,7 @@ class VisualAgent(SB3Model):
         n_words: int,
         databases: int,
         alpha: float,
-        min_count: int,
+        min_count: int | str,
         max_stages: int,
         epsilon: float,
         n_envs: int,
@@ -106,7 +110,6 @@ class VisualAgent(SB3Model):
         counts = {
             "n_words": n_words,
             "databases": databases,
-            "min_count": min_count,
             "max_stages": max_stages,
             "n_envs": n_envs,
             "max_keypoints": max_keypoints,
@@ -115,14 +118,10 @@ class VisualAgent(SB3Model):
         }
         check_integers(**counts)
         check_at_least(0, seed=seed, max_blocked=max_blocked)
-        check_at_least(2, n_words=n_words, min_count=min_count)
+        check_at_least(2, n_words=n_words)
         check_at_least(1, databases=databases, max_stages=max_stages, n_envs=n_envs)
-        if isinstance(enlarge, str):
-            if enlarge != "auto":
-                raise ValueError(f"enlarge must be 'auto' or an integer >= 1, got {enlarge!r}")
-        else:
-            check_integers(enlarge=enlarge)
-            check_at_least(1, enlarge=enlarge)
+        check_auto_or_integer(2, min_count=min_count)
+        check_auto_or_integer(1, enlarge=enlarge)
         check_at_least(0, max_keypoints=max_keypoints)
         if not contrast_threshold > 0:
             raise ValueError(f"contrast_threshold must be > 0, got {contrast_threshold!r}")
@@ -142,7 +141,8 @@ class VisualAgent(SB3Model):
         gamma = 0.99 if gamma is None else gamma
         check_discount(gamma)
         self.n_words, self.databases = int(n_words), int(databases)
-        self.alpha, self.min_count, self.max_stages = float(alpha), int(min_count), max_stages
+        self.alpha, self.max_stages = float(alpha), max_stages
+        self.min_count = min_count if isinstance(min_count, str) else int(min_count)
         self.epsilon, self.n_envs, self.max_keypoints = float(epsilon), n_envs, max_keypoints
         self.contrast_threshold = float(contrast_threshold)
         self.enlarge = enlarge if isinstance(enlarge, str) else int(enlarge)
@@ -195,6 +195,16 @@ class VisualAgent(SB3Model):
         """The constructor arguments of a saved file's settings; files without ``enlarge``
         saw every view as it is."""
         return {"enlarge": 1, **params}
+
+    @property
+    def split_count(self) -> int:
+        """Interactions a split needs on each side: ``min_count``, or for ``"auto"``
+        ``ENLARGED_MIN_COUNT`` where the vocabulary sees its views enlarged, else
+        ``MIN_COUNT``."""
+        if self.min_count != "auto":
+            return self.min_count
+        enlarged = self.extractor is not None and self.extractor.keypoints.enlarge > 1
+        return ENLARGED_MIN_COUNT if enlarged else MIN_COUNT
 
     # -- env --------------------------------------------------------------------------------
     def set_env(self, env: gym.Env) -> None:
@@ -321,7 +331,7 @@ class VisualAgent(SB3Model):
             warn(
                 f"one class after {len(self.database)} interactions: no feature's presence "
                 f"parted interactions of different values in at least min_count "
-                f"({self.min_count}) on each side, so the agent acts alike on every percept; "
+                f"({self.split_count}) on each side, so the agent acts alike on every percept; "
                 "collect more interactions (total_timesteps)"
             )
         return self
@@ -345,7 +355,7 @@ class VisualAgent(SB3Model):
         chunk = min(interactions, PERCEPTS_PER_CHUNK) * (image + keypoints * DESCRIPTOR_BYTES)
         cache = min(interactions, CACHE_SIZE) * (keypoints * 16 + CACHE_ENTRY_BYTES)
         # The split search's (class, action) groups that can split hold 2 min_count each.
-        cells = min(TABLE_CELLS, interactions // (2 * self.min_count) * self.n_words)
+        cells = min(TABLE_CELLS, interactions // (2 * self.split_count) * self.n_words)
         # A database is held twice while it joins the earlier ones.
         need = 2 * interactions * per_interaction + chunk + cache + cells * CELL_BYTES
         return need / 2**20

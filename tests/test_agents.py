@@ -134,6 +134,10 @@ def test_agent_save_load_round_trip_gives_identical_classes(small_agent, tmp_pat
 def test_an_agent_on_enlarged_views_keeps_them_when_saved(tmp_path):
     agent = RLVCAgent(small_maze(), n_words=64, n_envs=8, enlarge=2, seed=0).learn(1000)
     assert agent.extractor.keypoints.enlarge == 2
+    # min_count="auto" splits enlarged views on 5 interactions a side, other views on 10.
+    assert agent.split_count == agent.rlvc.min_count == 5
+    assert RLVCAgent(small_maze()).split_count == 10
+    assert RLVCAgent(small_maze(), min_count=7).split_count == 7
     agent.save(tmp_path / "agent.pt")
     loaded = RLVCAgent.load(tmp_path / "agent.pt")
     assert loaded.enlarge == loaded.extractor.keypoints.enlarge == 2
@@ -148,9 +152,12 @@ def test_an_agent_on_enlarged_views_keeps_them_when_saved(tmp_path):
     auto = RLVCAgent(small_views, n_words=64, n_envs=8, seed=0).learn(1000)
     assert auto.enlarge == "auto" and auto.extractor.keypoints.enlarge == 2
     auto.save(tmp_path / "auto.pt")
-    assert RLVCAgent.load(tmp_path / "auto.pt").extractor.keypoints.enlarge == 2
+    loaded = RLVCAgent.load(tmp_path / "auto.pt")
+    assert loaded.extractor.keypoints.enlarge == 2 and loaded.split_count == 5
     with pytest.raises(ValueError, match="enlarge must be 'auto' or an integer >= 1"):
         RLVCAgent(small_maze(), enlarge="big")
+    with pytest.raises(ValueError, match="min_count must be 'auto' or an integer >= 2"):
+        RLVCAgent(small_maze(), min_count="big")
 
 
 def test_load_refuses_other_spaces_and_bad_files(small_agent, tmp_path):

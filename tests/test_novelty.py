@@ -78,7 +78,7 @@ def test_without_a_reward_every_collecting_database_learns_on_the_bonus_alone():
 
 def test_once_a_split_can_be_rewarded_the_classes_learn_on_the_env_rewards_alone():
     agent, rewards = learned_rewards(small_maze())
-    assert agent.database.rewards[:500].count_nonzero() >= agent.min_count
+    assert agent.database.rewards[:500].count_nonzero() >= agent.split_count
     for collected, seen in rewards.items():
         assert seen == {round(float(agent.database.rewards[:collected].sum()), 9)}
     plain, _ = learned_rewards(small_maze(), novelty=0.0)

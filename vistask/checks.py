@@ -49,6 +49,18 @@ def check_integers(**values: object) -> None:
             raise TypeError(f"{name} must be an integer, got {value!r}")
 
 
+def check_auto_or_integer(low: int, **values: object) -> None:
+    """Raise unless every value is ``"auto"`` or an integer >= ``low``: ``ValueError`` for
+    another string or a smaller integer, ``TypeError`` for another type."""
+    for name, value in values.items():
+        if isinstance(value, str):
+            if value != "auto":
+                raise ValueError(f"{name} must be 'auto' or an integer >= {low}, got {value!r}")
+        else:
+            check_integers(**{name: value})
+            check_at_least(low, **{name: value})
+
+
 def check_bools(**values: object) -> None:
     """Raise ``TypeError`` unless every value is a bool (NumPy's too): a string such as
     ``"False"`` would otherwise switch an option on."""

@@ -415,6 +415,7 @@ def train_rlvc(
         "vocabulary_size": agent.extractor.n_features,
         "vocabulary_groups": agent.vocabulary_groups,
         "enlarge": agent.extractor.keypoints.enlarge,  # what "auto" chose
+        "min_count": agent.split_count,
         "interactions": agent.num_timesteps,
         "rewards_seen": agent.rewards_seen,
         "eval_starts": eval_starts,
