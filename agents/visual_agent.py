@@ -354,7 +354,7 @@ class VisualAgent(SB3Model):
         image = int(np.prod(self.observation_space.shape))
         chunk = min(interactions, PERCEPTS_PER_CHUNK) * (image + keypoints * DESCRIPTOR_BYTES)
         cache = min(interactions, CACHE_SIZE) * (keypoints * 16 + CACHE_ENTRY_BYTES)
-        # The split search's (class, action) groups that can split hold 2 min_count each.
+        # The split search's (class, action) groups that can split hold 2 split_count each.
         cells = min(TABLE_CELLS, interactions // (2 * self.split_count) * self.n_words)
         # A database is held twice while it joins the earlier ones.
         need = 2 * interactions * per_interaction + chunk + cache + cells * CELL_BYTES

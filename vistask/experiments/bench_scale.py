@@ -50,18 +50,18 @@ PREDICT_BATCHES = 20
 
 def predict_ms_per_percept(agent: RLVCAgent, env: gym.Env, seed: int) -> float:
     """Milliseconds a percept of ``agent.predict`` on one core, on batches of 64 views it never
-    saw (fresh episodes), keypoints and words included (the extractor's cache emptied before
+    saw (fresh episodes), keypoints and words included (the extractor's caches emptied before
     each)."""
     views = collect(env, PREDICT_BATCH * PREDICT_BATCHES, seed=10**6 + seed).percepts
     extractor, seconds = agent.extractor, 0.0
-    one_core = copy.copy(extractor.keypoints)  # SIFT's batches in this thread
-    one_core.threads = 1
     # A blocked move adds no percept: the batches are those the views fill.
     starts = range(0, len(views) - PREDICT_BATCH + 1, PREDICT_BATCH)
     with worker_threads(1):
         for start in starts:
-            agent.extractor = copy.copy(extractor)  # a copy starts with an empty cache
-            agent.extractor.keypoints = one_core
+            # Copies start with empty caches: the words' and, for panels, SIFT's views'.
+            agent.extractor = copy.copy(extractor)
+            agent.extractor.keypoints = copy.copy(extractor.keypoints)
+            agent.extractor.keypoints.threads = 1  # SIFT's batches in this thread
             batch = np.stack(views[start : start + PREDICT_BATCH])
             t0 = time.perf_counter()
             agent.predict(batch)
