@@ -312,3 +312,71 @@ def test_nbp_tries_the_turn_that_no_patch_votes_for() -> None:
         for seed in range(2):
             err_t, err_r = pose_error(nbp.infer(model, scene, seed=seed, depth=check).pose, TRUTH)
             assert (err_t < 0.005 and err_r < 3.0) if turns else err_r > 170.0
+
+
+AXES = torch.tensor([0.035, 0.02, 0.02])  # an ellipsoid (a lemon) lying on the table along x
+
+
+def _ellipsoid_view(eye: tuple[float, float, float], size: int = 96) -> RGBDView:
+    """Exact z-depth of the ellipsoid resting on the plane z = 0, by ray casting."""
+    camera = Camera(
+        intrinsics_from_fovy(50.0, size, size),
+        look_at(torch.tensor(eye), torch.tensor([0.0, 0.0, float(AXES[2])])),
+        size,
+        size,
+    )
+    eye_t = camera.position.float()
+    rays = camera.backproject(pixel_grid(size, size), torch.ones(size, size)).float() - eye_t
+    # In coordinates scaled by the axes the ellipsoid is the unit sphere: |o + t d| = 1.
+    o = (eye_t - torch.tensor([0.0, 0.0, float(AXES[2])])) / AXES
+    d = rays / AXES
+    a, b, c = d.square().sum(-1), 2 * (d * o).sum(-1), o.square().sum() - 1
+    disc = b.square() - 4 * a * c
+    near = (-b - disc.clamp_min(0).sqrt()) / (2 * a)
+    plane = -eye_t[2] / rays[..., 2]
+    depth = torch.where((disc >= 0) & (near > 0), near, plane)
+    return RGBDView(torch.zeros(size, size, 3, dtype=torch.uint8), depth, camera)
+
+
+def _ellipsoid_points(n: int = 400) -> tuple[torch.Tensor, torch.Tensor]:
+    """(n, 3) points evenly spread over the ellipsoid, in its frame (centred), and (n, 3)
+    their outward unit normals."""
+    k = torch.arange(n, dtype=torch.float32) + 0.5
+    z = 1 - 2 * k / n
+    angle = math.pi * (1 + 5**0.5) * k
+    sphere = torch.stack([(1 - z**2).sqrt() * angle.cos(), (1 - z**2).sqrt() * angle.sin(), z], -1)
+    return sphere * AXES, torch.nn.functional.normalize(sphere / AXES, dim=-1)
+
+
+ELLIPSOID = torch.tensor([0.0, 0.0, float(AXES[2]), 0.0, 0.0, 0.0, 1.0])  # its true pose
+
+
+def _axis_error_deg(poses: torch.Tensor) -> torch.Tensor:
+    """(H, 7) poses -> (H,) degrees between their long axis and the true one (either way)."""
+    axis = roma.quat_action(poses[:, 3:], torch.tensor([1.0, 0.0, 0.0]).expand(len(poses), 3))
+    return torch.rad2deg(torch.acos(axis[:, 0].abs().clamp(max=1.0)))
+
+
+def _ring(elevation_deg: float, n: int = 8) -> list[tuple[float, float, float]]:
+    """``n`` camera positions 0.5 m from the ellipsoid, evenly around it."""
+    e = math.radians(elevation_deg)
+    return [
+        (0.5 * math.cos(e) * math.cos(a), 0.5 * math.cos(e) * math.sin(a), 0.5 * math.sin(e))
+        for a in torch.arange(n) * 2 * math.pi / n
+    ]
+
+
+def test_refinement_matches_only_the_points_that_face_the_camera() -> None:
+    # One camera sees the near side of a smooth ellipsoid. Its far side's points project
+    # onto the same pixels; matched there, they tilt the pose off the true one.
+    points, normals = _ellipsoid_points()
+    truth = ELLIPSOID[None]
+    culled, plain = [], []
+    for eye in _ring(35.0):
+        check = DepthCheck([_ellipsoid_view(eye)], floor_z=0.0)
+        culled.append(check.refine(truth, points, normals=normals))
+        plain.append(check.refine(truth, points))
+    culled, plain = torch.cat(culled), torch.cat(plain)
+    assert _axis_error_deg(culled).mean() < 2.5 and _axis_error_deg(plain).mean() > 4.0
+    err_t, _ = pose_error(culled, truth.expand_as(culled))
+    assert (err_t < 0.002).all()

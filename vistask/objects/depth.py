@@ -7,17 +7,18 @@ Points behind the observed surface are hidden (by the object itself or by others
 neither way.
 
 ``DepthCheck(views).refine(poses, points)`` pulls hypotheses onto the observed surfaces
-(projective ICP: each model point is matched to the nearest back-projected pixel in a small
-window around its projection, then a rigid fit); ``weights`` scores them by the share of
-their model points that the depth explains, less what it rules out; ``colour_agreement`` by
-how well the colours of the model's surface match the pixels under the points the depth
-explains.
+(projective ICP: each model point facing a camera is matched to the nearest back-projected
+pixel in a small window around its projection, then a rigid fit); ``weights`` scores them by
+the share of their model points that the depth explains, less what it rules out;
+``colour_agreement`` by how well the colours of the model's surface match the pixels under
+the points the depth explains.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
 
+import roma
 import torch
 import torch.nn.functional as F
 from torch import Tensor
@@ -70,6 +71,12 @@ def _pixels(camera, points: Tensor, H: int, W: int) -> tuple[Tensor, ...]:
     return u, v, z, (u >= 0) & (u < W) & (v >= 0) & (v < H) & (z > 0)
 
 
+def _facing(camera, world: Tensor, normals: Tensor) -> Tensor:
+    """(..., 3) world points and their (..., 3) outward world normals -> (...) whether each
+    faces the camera (the camera lies in front of the point's tangent plane)."""
+    return ((camera.position.to(world) - world) * normals).sum(-1) > 0
+
+
 def evenly_spaced(points: Tensor, k: int) -> Tensor:
     """At most ``k`` of (N, ...) ``points`` (or patch frames), evenly spaced in their order."""
     if len(points) <= k:
@@ -83,8 +90,9 @@ class DepthCheck:
 
     Example:
         >>> check = DepthCheck(scene.views.values(), floor_z=TABLE_TOP_Z)
-        >>> poses = check.refine(poses, model.patches.positions)  # (H, 7)
-        >>> check.weights(poses, model.patches.positions)  # (H,) in [0, 1]
+        >>> patches = model.patches
+        >>> poses = check.refine(poses, patches.positions, normals=patches.normals)  # (H, 7)
+        >>> check.weights(poses, patches.positions)  # (H,) in [0, 1]
 
     Args:
         views: V RGB-D views of the scene (pixels without valid depth are ignored).
@@ -167,7 +175,9 @@ class DepthCheck:
             out.append((closest.movedim(0, -1), dist, inside, free, hidden))
         return out
 
-    def refine(self, poses: Tensor, points: Tensor, iters: int = 3) -> Tensor:
+    def refine(
+        self, poses: Tensor, points: Tensor, iters: int = 3, normals: Tensor | None = None
+    ) -> Tensor:
         """Pull poses onto the observed surfaces: at each scale of ``REFINE_SCALES_M``,
         ``iters`` times, the model points within that distance of their nearest observed
         point (in any view) are fitted rigidly onto them (weighted Kabsch).
@@ -177,18 +187,32 @@ class DepthCheck:
             points: (N, 3) model points in the object frame (at most ``REFINE_POINTS`` of
                 them are used).
             iters: fits at each scale.
+            normals: (N, 3) the points' outward unit normals in the object frame; when
+                given, a point is matched in a view only where it faces that camera (a
+                point on the far side of a round object would otherwise be matched to the
+                near side's pixels). None: every point is matched.
 
         Returns:
             (H, 7) the refined poses; a pose stays where fewer than ``MIN_MATCHES`` points
             match.
         """
         poses, points = poses.float(), evenly_spaced(points.float(), REFINE_POINTS)
+        if normals is not None:
+            normals = evenly_spaced(normals.float(), REFINE_POINTS)
         source = points.expand(len(poses), len(self._maps), *points.shape).flatten(1, 2)
         for scale in REFINE_SCALES_M:
             for _ in range(iters):
-                matches = self.match(apply(poses[:, None], points))
+                world = apply(poses[:, None], points)
+                matches = self.match(world)
                 target = torch.cat([closest for closest, *_ in matches], dim=1)  # (H, VN, 3)
-                near = torch.cat([dist < scale for _, dist, *_ in matches], dim=1)
+                near = [dist < scale for _, dist, *_ in matches]
+                if normals is not None:
+                    turned = normals @ roma.unitquat_to_rotmat(poses[:, 3:]).mT  # (H, N, 3)
+                    near = [
+                        n & _facing(camera, world, turned)
+                        for n, (camera, *_) in zip(near, self._maps, strict=True)
+                    ]
+                near = torch.cat(near, dim=1)
                 poses, moved = rigid_refit(poses, source, target, near.float(), MIN_MATCHES)
                 if not moved:
                     return poses

@@ -313,7 +313,7 @@ class NBP:
         candidates, _ = object_belief.modes(
             k=self.n_modes, n_starts=self.mode_starts, n_iter=MODE_ITERATIONS, generator=gen
         )
-        points = model.patches.positions.cpu()
+        points, normals = model.patches.positions.cpu(), model.patches.normals.cpu()
         if depth is not None:
             # Modes follow the votes; a target mostly hidden among lookalikes gets few, and
             # one under other light or tipped onto an unseen side gets misleading ones. Poses
@@ -342,7 +342,7 @@ class NBP:
         if depth is None:
             scores = match.support(candidates, self.evidence_sigma_t, self.evidence_sigma_r)
         else:
-            candidates = depth.refine(candidates.cpu(), points, DEPTH_REFINE_ITERS)
+            candidates = depth.refine(candidates.cpu(), points, DEPTH_REFINE_ITERS, normals)
             fit, explained = self._depth_terms(model, candidates, depth)
             if self.turns:
                 # A few patches in sight can leave a quarter or half turn open that their
@@ -350,7 +350,7 @@ class NBP:
                 best = torch.argsort(fit * explained, descending=True)[: self.turns]
                 centre = points.mean(dim=0)
                 turned = self._screened(model, turn_about(candidates[best], centre), depth)
-                turned = depth.refine(turned, points, DEPTH_REFINE_ITERS)
+                turned = depth.refine(turned, points, DEPTH_REFINE_ITERS, normals)
                 fit_t, explained_t = self._depth_terms(model, turned, depth)
                 candidates = torch.cat([candidates, turned])
                 fit, explained = torch.cat([fit, fit_t]), torch.cat([explained, explained_t])
