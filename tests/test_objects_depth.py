@@ -1,4 +1,4 @@
-"""Pose hypotheses against depth images: a box on a table, ray-cast exactly."""
+"""Pose hypotheses against depth images: a box and an ellipsoid on a table, ray-cast exactly."""
 
 import math
 
