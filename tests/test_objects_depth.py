@@ -26,23 +26,30 @@ HALF = torch.tensor([0.05, 0.03, 0.04])  # the box: [-hx, hx] x [-hy, hy] x [0, 
 TRUTH = torch.tensor([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0])
 
 
-def _view(eye: tuple[float, float, float], size: int = 96) -> RGBDView:
-    """Exact z-depth of the box on the plane z = 0, by slab ray casting."""
+def _rays(eye: tuple[float, float, float], target_z: float, size: int) -> tuple:
+    """A camera at ``eye`` looking at (0, 0, ``target_z``), its (3,) position, the (size,
+    size, 3) rays of its pixels scaled so that a ray's parameter is the z-depth, and the
+    (size, size) z-depth of the plane z = 0 along each."""
     camera = Camera(
         intrinsics_from_fovy(50.0, size, size),
-        look_at(torch.tensor(eye), torch.tensor([0.0, 0.0, 0.03])),
+        look_at(torch.tensor(eye), torch.tensor([0.0, 0.0, target_z])),
         size,
         size,
     )
     eye_t = camera.position.float()
     # Points at z-depth 1 minus the eye: along each ray, the parameter is the z-depth.
     rays = camera.backproject(pixel_grid(size, size), torch.ones(size, size)).float() - eye_t
+    return camera, eye_t, rays, -eye_t[2] / rays[..., 2]
+
+
+def _view(eye: tuple[float, float, float], size: int = 96) -> RGBDView:
+    """Exact z-depth of the box on the plane z = 0, by slab ray casting."""
+    camera, eye_t, rays, plane = _rays(eye, 0.03, size)
     lo = torch.tensor([-HALF[0], -HALF[1], 0.0])
     hi = torch.tensor([HALF[0], HALF[1], 2 * HALF[2]])
     t1, t2 = (lo - eye_t) / rays, (hi - eye_t) / rays
     near = torch.minimum(t1, t2).amax(-1)
     far = torch.maximum(t1, t2).amin(-1)
-    plane = -eye_t[2] / rays[..., 2]
     depth = torch.where((far >= near) & (near > 0), near, plane)
     return RGBDView(torch.zeros(size, size, 3, dtype=torch.uint8), depth, camera)
 
@@ -319,21 +326,13 @@ AXES = torch.tensor([0.035, 0.02, 0.02])  # an ellipsoid (a lemon) lying on the 
 
 def _ellipsoid_view(eye: tuple[float, float, float], size: int = 96) -> RGBDView:
     """Exact z-depth of the ellipsoid resting on the plane z = 0, by ray casting."""
-    camera = Camera(
-        intrinsics_from_fovy(50.0, size, size),
-        look_at(torch.tensor(eye), torch.tensor([0.0, 0.0, float(AXES[2])])),
-        size,
-        size,
-    )
-    eye_t = camera.position.float()
-    rays = camera.backproject(pixel_grid(size, size), torch.ones(size, size)).float() - eye_t
+    camera, eye_t, rays, plane = _rays(eye, float(AXES[2]), size)
     # In coordinates scaled by the axes the ellipsoid is the unit sphere: |o + t d| = 1.
     o = (eye_t - torch.tensor([0.0, 0.0, float(AXES[2])])) / AXES
     d = rays / AXES
     a, b, c = d.square().sum(-1), 2 * (d * o).sum(-1), o.square().sum() - 1
     disc = b.square() - 4 * a * c
     near = (-b - disc.clamp_min(0).sqrt()) / (2 * a)
-    plane = -eye_t[2] / rays[..., 2]
     depth = torch.where((disc >= 0) & (near > 0), near, plane)
     return RGBDView(torch.zeros(size, size, 3, dtype=torch.uint8), depth, camera)
 
