@@ -63,7 +63,7 @@ class RLJCAgent(VisualAgent):
             weaker keypoints).
         enlarge: SIFT runs on each view enlarged this many times, keeping the keypoints whose
             descriptor lies inside the view (``SiftExtractor``'s ``enlarge``; >= 1), or
-            ``"auto"`` (the default): 2 where the views are under 48 pixels on a side and
+            ``"auto"`` (the default): 2 where the views are under 56 pixels on a side and
             keep at least as many keypoints enlarged (``choose_enlarge``, on the first
             database's views), else 1.
         gamma: discount in [0, 1) (default: the env's ``gamma`` attribute, else 0.99).

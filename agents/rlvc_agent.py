@@ -110,7 +110,7 @@ class RLVCAgent(VisualAgent):
             and smooth views still show keypoints).
         enlarge: SIFT runs on each view enlarged this many times, keeping the keypoints whose
             descriptor lies inside the view (``SiftExtractor``'s ``enlarge``; >= 1), or
-            ``"auto"`` (the default): 2 where the views are under 48 pixels on a side and
+            ``"auto"`` (the default): 2 where the views are under 56 pixels on a side and
             keep at least as many keypoints enlarged (``choose_enlarge``, on the first
             database's views), else 1.
         compounds: make compound features (two features in a stable spatial relation) for

@@ -146,7 +146,7 @@ def test_an_agent_on_enlarged_views_keeps_them_when_saved(tmp_path):
     assert np.array_equal(loaded.predict(images)[0], agent.predict(images)[0])
     # Files saved before ``enlarge`` existed saw every view as it is.
     assert RLVCAgent._params_from_state({"seed": 0})["enlarge"] == 1
-    # By default ("auto") views under 48 pixels of a photograph are enlarged, and the
+    # By default ("auto") views under 56 pixels of a photograph are enlarged, and the
     # decision is the saved vocabulary's.
     small_views = gym.make("vistask/VisualMaze-v0", **{**SMALL, "window": 32})
     auto = RLVCAgent(small_views, n_words=64, n_envs=8, seed=0).learn(1000)

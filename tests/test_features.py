@@ -88,8 +88,9 @@ def test_auto_enlarges_small_photo_views_but_not_smooth_rendered_ones():
     # Place navigation's rendered rooms show fewer keypoints enlarged at its threshold.
     small_rooms = views("vistask/PlaceNavigation-v0", image_size=32, views_per_state=2)
     assert choose_enlarge(small_rooms, 0.02, 24) == 1
-    # Views of 48 pixels or more, or of a panel that wide, are taken as they are.
-    assert choose_enlarge(views("vistask/VisualMaze-v0", window=48), 0.005, 24) == 1
+    assert choose_enlarge(views("vistask/VisualMaze-v0", window=48), 0.005, 24) == 2
+    # Views of 56 pixels or more, or of a panel that wide, are taken as they are.
+    assert choose_enlarge(views("vistask/VisualMaze-v0", window=56), 0.005, 24) == 1
     car = gym.make("vistask/VisualMountainCar-v0")
     panels = car.unwrapped.panel_widths  # the road and the gauge, 96 pixels each
     assert choose_enlarge(collect(car, 300, seed=0).percepts, 0.005, 24, panels) == 1

@@ -30,7 +30,7 @@ VIEW_CACHE = 10_000
 SUPPORT_RADIUS = 4.0
 # Views whose shorter side is under this many pixels are enlarged twice by ``choose_enlarge``
 # (``enlarge="auto"``) where that keeps at least as many keypoints.
-SMALL_VIEW = 48
+SMALL_VIEW = 56
 # Views of a first database that ``choose_enlarge`` counts keypoints on, evenly spaced.
 ENLARGE_SAMPLE = 256
 
