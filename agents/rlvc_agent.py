@@ -94,6 +94,9 @@ class RLVCAgent(VisualAgent):
         min_count: interactions needed on each side of a split (>= 2), or ``"auto"`` (the
             default): 5 where SIFT sees the views enlarged (``enlarge``), else 10
             (``split_count`` holds the number in use).
+        min_effect: a split must also show TD errors whose means differ by more than this
+            share of the range of the class values, so that more interactions do not split
+            the classes ever finer (in [0, 1), default 0: any significant difference).
         max_stages: stage cap of the stages that follow each database (>= 1, default 300).
         epsilon: exploration rate of the epsilon-greedy databases and of
             ``predict(deterministic=False)`` (in [0, 1], default 0.2).
@@ -144,6 +147,7 @@ class RLVCAgent(VisualAgent):
         databases: int = 4,
         alpha: float = 0.05,
         min_count: int | str = "auto",
+        min_effect: float = 0.0,
         max_stages: int = 300,
         epsilon: float = 0.2,
         n_envs: int = 128,
@@ -178,6 +182,11 @@ class RLVCAgent(VisualAgent):
             enlarge,
         )
         check_bools(compounds=compounds, nearest_seen=nearest_seen)
+        if isinstance(min_effect, bool) or not isinstance(min_effect, int | float):
+            raise TypeError(f"min_effect must be a number, got {min_effect!r}")
+        if not 0 <= min_effect < 1:
+            raise ValueError(f"min_effect must be in [0, 1), got {min_effect!r}")
+        self.min_effect = float(min_effect)
         if not isinstance(compaction, Compaction):
             check_bools(compaction=compaction)
             compaction = Compaction() if compaction else None
@@ -224,6 +233,7 @@ class RLVCAgent(VisualAgent):
             compaction=self.compaction is not None,
             compact_every=settings.every,
             compaction_tolerance=settings.tolerance,
+            min_effect=self.min_effect,
         )
 
     def _greedy(self, presence: torch.Tensor) -> np.ndarray:
@@ -270,6 +280,7 @@ class RLVCAgent(VisualAgent):
             "nearest_seen": self.nearest_seen,
             "vocabulary_groups": self.vocabulary_groups,
             "novelty": self.novelty,
+            "min_effect": self.min_effect,
         }
 
     @classmethod

@@ -131,6 +131,14 @@ def test_agent_save_load_round_trip_gives_identical_classes(small_agent, tmp_pat
         RLVCAgent.load(tmp_path / "agent.pt").learn(1000)
 
 
+def test_min_effect_reaches_the_learner_and_is_saved(tmp_path):
+    agent = RLVCAgent(small_maze(), n_words=64, n_envs=8, min_effect=0.05, seed=0).learn(1000)
+    assert agent.rlvc.min_effect == 0.05
+    agent.save(tmp_path / "agent.pt")
+    loaded = RLVCAgent.load(tmp_path / "agent.pt", small_maze())
+    assert loaded.min_effect == 0.05 and loaded.rlvc.min_effect == 0.05
+
+
 def test_an_agent_on_enlarged_views_keeps_them_when_saved(tmp_path):
     agent = RLVCAgent(small_maze(), n_words=64, n_envs=8, enlarge=2, seed=0).learn(1000)
     assert agent.extractor.keypoints.enlarge == 2

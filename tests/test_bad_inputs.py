@@ -216,7 +216,7 @@ def test_an_integer_setting_of_another_type_is_refused_naming_it(name, value):
 
 @settings(max_examples=80, deadline=None)
 @given(
-    st.sampled_from(["alpha", "epsilon", "gamma", "contrast_threshold"]),
+    st.sampled_from(["alpha", "epsilon", "gamma", "contrast_threshold", "min_effect"]),
     st.floats(allow_nan=True, allow_infinity=True),
 )
 def test_a_float_setting_is_kept_in_its_range_or_refused_naming_it(name, value):
@@ -235,6 +235,7 @@ def test_a_float_setting_is_kept_in_its_range_or_refused_naming_it(name, value):
             "epsilon": 0 <= kept <= 1,
             "gamma": 0 <= kept < 1,
             "contrast_threshold": kept > 0,
+            "min_effect": 0 <= kept < 1,
         }[name]
     )
 

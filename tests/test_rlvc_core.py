@@ -72,6 +72,23 @@ def test_the_t_test_refuses_splits_on_pure_noise():
     ]
 
 
+def test_a_margin_refuses_splits_whose_means_differ_by_less():
+    rng = np.random.default_rng(2)
+    n, f = 4000, 5
+    presence = torch.from_numpy(rng.random((n, f)) < 0.5)
+    rows, features = sparse(presence)
+    zeros = torch.zeros(n, dtype=torch.long)
+    # Feature 3 shifts the TD errors by 0.3: significant with thousands of interactions.
+    deltas = torch.from_numpy(rng.normal(0, 1, n)) + 0.3 * presence[:, 3]
+    args = (rows, features, zeros, zeros, deltas, 1, 1, f)
+    assert [s.feature for s in find_splits(*args)] == [3]
+    assert [s.feature for s in find_splits(*args, margin=0.1)] == [3]
+    assert find_splits(*args, margin=0.3) == []
+    # A split that the margin lets through keeps its reduction; its p-value grows.
+    (plain,), (margined,) = find_splits(*args), find_splits(*args, margin=0.1)
+    assert margined.reduction == plain.reduction and margined.p_value > plain.p_value
+
+
 def test_min_count_bounds_each_side_of_a_split():
     n = 100
     presence = torch.zeros(n, 2, dtype=torch.bool)
@@ -498,6 +515,18 @@ def test_rlvc_learns_the_synthetic_chain_and_its_incremental_classes_match_the_t
     assert rlvc.greedy(chain).tolist() == [1, 1, 1, 1, 1]
     # Each stage's mean |TD| shrinks as aliasing is removed.
     assert rlvc.history[-1].mean_abs_td < 0.5 * rlvc.history[0].mean_abs_td
+
+
+def test_min_effect_stops_the_splits_of_small_value_differences():
+    # The chain's values grow towards its rewarding end; splits that tell its far states
+    # apart show TD errors that differ by a small share of that range.
+    db = synthetic_chain(n_states=20, n=8000)
+    plain = RLVC(db.n_features, 2, gamma=0.9).learn(db, progress=False)
+    coarse = RLVC(db.n_features, 2, gamma=0.9, min_effect=0.1).learn(db, progress=False)
+    assert 1 < coarse.n_classes < plain.n_classes
+    assert RLVC.from_state_dict(coarse.state_dict()).min_effect == 0.1
+    with pytest.raises(ValueError, match="min_effect"):
+        RLVC(db.n_features, 2, gamma=0.9, min_effect=1.0)
 
 
 @pytest.mark.parametrize("max_stages", [2, 200])  # cut while splitting, and run to the end

@@ -117,6 +117,7 @@ def find_compound_splits(
     skip: set[int] | frozenset = frozenset(),
     to_beat: Sequence[Split] = (),
     threads: int = 1,
+    margin: float = 0.0,
 ) -> tuple[list[tuple[Split, Compound]], list[int]]:
     """The best significant compound split of each of the ``max_classes`` most aliased classes
     that are not in ``skip`` (classes that the learner searched in vain since they last
@@ -138,6 +139,7 @@ def find_compound_splits(
         to_beat: primitive splits of some classes (``find_splits``), the reductions that
             their compound splits must exceed.
         threads: classes searched side by side in threads (>= 1, default 1).
+        margin: as in ``find_splits``.
 
     Returns:
         (split, compound) pairs (``split.feature`` is -1 until the compound gets a feature
@@ -178,6 +180,7 @@ def find_compound_splits(
             len(candidates),
             alpha / rank.ranked,  # the candidates are among the relations ranked
             min_count,
+            margin=margin,
         )
         if not splits or splits[0].reduction <= primitive.get(state, 0.0):
             return None

@@ -120,6 +120,10 @@ class RLVC:
         compaction_tolerance: classes merge when their values, and the values of their
             greedy actions in each other, differ by at most this share of the range of the
             class values.
+        min_effect: a split must show TD errors whose means differ by more than this share
+            of the range of the class values (Welch's test against that margin), so that
+            more data do not split classes ever finer on value differences too small to
+            matter (0: any significant difference, the paper's test; in [0, 1)).
     """
 
     n_features: int
@@ -132,6 +136,7 @@ class RLVC:
     compaction: bool = False
     compact_every: int | None = None
     compaction_tolerance: float = 0.02
+    min_effect: float = 0.0
     compounds: list[Compound] = field(default_factory=list, init=False)
     structure: ClassTree | ClassBDD = field(init=False)
     # With ``remember``, new percepts take the class of the nearest percepts learned on.
@@ -176,6 +181,8 @@ class RLVC:
             raise ValueError(
                 f"compaction_tolerance must be in [0, 1), got {self.compaction_tolerance}"
             )
+        if not 0 <= self.min_effect < 1:
+            raise ValueError(f"min_effect must be in [0, 1), got {self.min_effect}")
         defaults = {f.name: f.default for f in fields(self)}
         for option, switch in (
             ("compact_every", "compaction"),
@@ -260,6 +267,7 @@ class RLVC:
             s, s_next = classes[db.obs], classes[db.next_obs]
             deltas = td_errors(q, s, db.actions, db.rewards, s_next, db.terminal, self.gamma)
             solved = time.perf_counter()
+            margin = self.min_effect * value_range(q)
             splits = find_splits(
                 rows,
                 features,
@@ -275,10 +283,11 @@ class RLVC:
                 # splits a class when it does half as well as the class's best split.
                 prefer=self._tested_mask() if self.compaction else None,
                 pairs=pairs,
+                margin=margin,
             )
             if self.use_compounds:
                 compound_start = time.perf_counter()
-                made = self._compound_splits(db, s, deltas, splits, threads)
+                made = self._compound_splits(db, s, deltas, splits, threads, margin)
                 if made:
                     won = {split.state for split in made}
                     splits = [split for split in splits if split.state not in won] + made
@@ -371,8 +380,7 @@ class RLVC:
 
     def _merge_tolerance(self, q: torch.Tensor) -> float:
         """``compaction_tolerance`` as a value: its share of the range of the values of ``q``."""
-        values = state_values(q)
-        return self.compaction_tolerance * float(values.max() - values.min())
+        return self.compaction_tolerance * value_range(q)
 
     def regrow(self, db: InteractionDatabase) -> RLVC:
         """Grow the classes again as one decision tree over the features they test, every
@@ -503,6 +511,7 @@ class RLVC:
         deltas: torch.Tensor,
         primitive: list[Split],
         threads: int,
+        margin: float,
     ) -> list[Split]:
         """Significant compound splits of the most aliased classes, where they do better than
         the classes' ``primitive`` splits; their compounds join the features (of this learner,
@@ -519,6 +528,7 @@ class RLVC:
             skip=self._no_compound,
             to_beat=primitive,
             threads=threads,
+            margin=margin,
         )
         self._no_compound.update(set(searched) - {split.state for split, _ in found})
         new: dict[Compound, int] = {}  # two classes may pick the same compound
@@ -571,6 +581,7 @@ class RLVC:
             "compaction": self.compaction,
             "compact_every": self.compact_every,
             "compaction_tolerance": self.compaction_tolerance,
+            "min_effect": self.min_effect,
         }
 
     def state_dict(self) -> dict:
@@ -609,6 +620,12 @@ class RLVC:
     def load(cls, path: str | Path) -> RLVC:
         """Read what ``save`` wrote to ``path``."""
         return cls.from_state_dict(load_state(path, "RLVC"))
+
+
+def value_range(q: torch.Tensor) -> float:
+    """The range of the class values ``state_values(q)`` of (S, A) ``q``."""
+    values = state_values(q)
+    return float(values.max() - values.min())
 
 
 def _bootstrap_structure(

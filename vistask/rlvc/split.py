@@ -81,9 +81,12 @@ def welch_splits(
     s1_b: torch.Tensor,
     s2_b: torch.Tensor,
     alpha: float | torch.Tensor,
+    margin: float = 0.0,
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """Score candidate splits of TD errors into two sides a and b, each given by its counts,
-    sums and sums of squares (K,) float64, at significance level ``alpha`` (one, or (K,)).
+    sums and sums of squares (K,) float64, at significance level ``alpha`` (one, or (K,)):
+    Welch's test that the sides' means differ by more than ``margin`` (>= 0, in TD-error
+    units; 0: that they differ at all).
 
     Returns:
         reduction (K,): SSE(a + b) - SSE(a) - SSE(b); p (K,): Welch's two-sided p-value (1
@@ -94,8 +97,10 @@ def welch_splits(
     # Welch's t for every candidate, in torch; exact p-values (scipy) only where |t| beats the
     # normal quantile, a lower bound of every Student quantile, so the rest cannot pass.
     se2_a, se2_b = sse_a / (n_a - 1) / n_a, sse_b / (n_b - 1) / n_b
-    diff = s1_a / n_a - s1_b / n_b
-    t = diff.abs() / (se2_a + se2_b).sqrt()  # inf for a perfect split, nan for no difference
+    diff = (s1_a / n_a - s1_b / n_b).abs()
+    if margin > 0:
+        diff = (diff - margin).clamp_min(0.0)
+    t = diff / (se2_a + se2_b).sqrt()  # inf for a perfect split, nan for no difference
     z = torch.as_tensor(stats.norm.isf(torch.as_tensor(alpha).numpy() / 2))
     maybe = (reduction > 0) & (t.nan_to_num(0.0) > z)
     p = torch.ones_like(t)
@@ -256,6 +261,7 @@ def find_splits(
     prefer: torch.Tensor | None = None,
     prefer_share: float = 0.5,
     pairs: torch.Tensor | None = None,
+    margin: float = 0.0,
 ) -> list[Split]:
     """Best significant split of every class.
 
@@ -274,6 +280,8 @@ def find_splits(
         pairs: (N,) long, the distinct (x_t, action) pair of each interaction, which ``rows``
             index (``InteractionDatabase.percept_action_features``): the search then reads each
             pair once however often it was met. None: ``rows`` index interactions.
+        margin: the TD errors' means on the two sides of a split must differ by more than
+            this (``welch_splits``; 0: by anything significant).
 
     Returns:
         One ``Split`` per class whose best split is significant, by decreasing reduction.
@@ -316,7 +324,8 @@ def find_splits(
 
     def score(k: torch.Tensor | slice) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         n, s1, s2 = n_gc[k], s1_gc[k], s2_gc[k]
-        return welch_splits(n_f[k], s1_f[k], s2_f[k], n - n_f[k], s1 - s1_f[k], s2 - s2_f[k], alpha)
+        a, b = (n_f[k], s1_f[k], s2_f[k]), (n - n_f[k], s1 - s1_f[k], s2 - s2_f[k])
+        return welch_splits(*a, *b, alpha, margin)
 
     def summed_by_interaction(k: torch.Tensor) -> tuple[torch.Tensor, ...]:
         k = torch.sort(k).values  # candidates ascend with their cells
