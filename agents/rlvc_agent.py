@@ -182,8 +182,6 @@ class RLVCAgent(VisualAgent):
             enlarge,
         )
         check_bools(compounds=compounds, nearest_seen=nearest_seen)
-        if isinstance(min_effect, bool) or not isinstance(min_effect, int | float):
-            raise TypeError(f"min_effect must be a number, got {min_effect!r}")
         if not 0 <= min_effect < 1:
             raise ValueError(f"min_effect must be in [0, 1), got {min_effect!r}")
         self.min_effect = float(min_effect)
@@ -205,8 +203,6 @@ class RLVCAgent(VisualAgent):
         check_integers(vocabulary_groups=vocabulary_groups)
         check_at_least(1, vocabulary_groups=vocabulary_groups)
         self.vocabulary_groups = int(vocabulary_groups)
-        if isinstance(novelty, bool) or not isinstance(novelty, int | float):
-            raise TypeError(f"novelty must be a number, got {novelty!r}")
         if not 0 <= novelty < math.inf:
             raise ValueError(f"novelty must be finite and >= 0, got {novelty!r}")
         self.novelty = float(novelty)
