@@ -59,10 +59,6 @@ from vistask.vision import Patches
 WIDER_CLASSES = 2.0
 """Factor on the appearance classes' radii when too few scene patches fall within them."""
 
-VOTED_POSES = 32
-"""Poses most voted for by patch pairs (``PairTable.vote``) that are screened against the
-depth images."""
-
 MODE_ITERATIONS = 10
 """Mean-shift iterations of the object belief's modes."""
 
@@ -166,9 +162,9 @@ class NBP:
             against them; the ``n_modes`` best join the modes as hypotheses.
         pair_references: with depth images, scene patches that pair with their neighbours
             to vote for poses by the pairs' geometry, whatever their appearance
-            (``vistask.objects.pair_votes``); the ``VOTED_POSES`` most voted are screened
-            against the depth images and the ``n_modes`` best join the hypotheses too. 0
-            disables the votes.
+            (``vistask.objects.pair_votes``); every reference's most voted poses are
+            screened against the depth images and the ``n_modes`` best join the hypotheses
+            too. 0 disables the votes.
         regions: with depth images, the largest regions of scene patches that match the
             model's appearance (``link_groups``) searched on their own: a target that shows
             a few patches among lookalikes gets no mode of the whole scene's belief, but
@@ -209,7 +205,7 @@ class NBP:
         cutoff: float | None = None,
         n_modes: int = 4,
         depth_draws: int = 128,
-        pair_references: int = 20,
+        pair_references: int = 120,
         regions: int = 6,
         turns: int = 2,
         mode_starts: int = 32,
@@ -327,9 +323,7 @@ class NBP:
             if self.pair_references:
                 table = model.pair_table()
                 prefer = model.classify(patches.colors.cpu(), radius_scale) >= 0
-                voted, _ = table.vote(
-                    patches.frames(), self.pair_references, VOTED_POSES, gen, prefer
-                )
+                voted, _ = table.vote(patches.frames(), self.pair_references, gen, prefer)
                 sources.append(voted)
             if self.regions:
                 sources.append(self._region_modes(model, evidence, gen))

@@ -13,7 +13,7 @@ measured, and a random patch in a cluttered scene rarely lies on the target.
 
 Example:
     >>> table = PairTable(model.patches.frames())
-    >>> poses, votes = table.vote(scene.frames(), 20, 32, torch.Generator().manual_seed(0))
+    >>> poses, votes = table.vote(scene.frames(), 120, torch.Generator().manual_seed(0))
 """
 
 from __future__ import annotations
@@ -134,28 +134,27 @@ class PairTable:
         self,
         scene: Tensor,
         n_references: int,
-        k: int,
         generator: torch.Generator,
         prefer: Tensor | None = None,
     ) -> tuple[Tensor, Tensor]:
-        """The ``k`` object poses most voted for by pairs of scene patches.
+        """The object poses that pairs of scene patches vote for: each reference patch's
+        ``PEAKS_PER_REFERENCE`` most voted cells.
 
         Args:
             scene: (M, 7) world frames of the scene's patches.
             n_references: reference patches drawn at random (all of them if fewer); each is
                 paired with every scene patch within the model's diameter (``votes``).
-            k: poses returned at most; each reference proposes its ``PEAKS_PER_REFERENCE``
-                best cells.
             generator: the draw of the references.
             prefer: (M,) bool, patches likelier to lie on the object (their appearance
                 matches it): up to half of the references are drawn among them, the rest
                 among the others.
 
         Returns:
-            (K, 7) world object poses and (K,) their votes, most voted first (K <= k; none
-            when no scene pair matches a model pair).
+            (K, 7) world object poses and (K,) their votes, most voted first (K <=
+            ``PEAKS_PER_REFERENCE`` n_references; none when no scene pair matches a model
+            pair).
         """
-        check_at_least(1, n_references=n_references, k=k)
+        check_at_least(1, n_references=n_references)
         references = torch.randperm(len(scene), generator=generator, device=generator.device)
         if prefer is not None:
             preferred = prefer.to(references.device)[references]
@@ -166,7 +165,7 @@ class PairTable:
         peaks, cells = votes.topk(min(PEAKS_PER_REFERENCE, votes.shape[1]), dim=1)
         owner = torch.arange(len(references), device=scene.device)[:, None].expand_as(peaks)
         peaks, cells, owner = peaks.flatten(), cells.flatten(), owner.flatten()
-        best = torch.argsort(peaks, descending=True)[:k]
+        best = torch.argsort(peaks, descending=True)
         best = best[peaks[best] > 0]
         angle = (cells[best] % TURN_BINS + 0.5) * (2 * math.pi / TURN_BINS)
         model_patch = self.frames.to(scene)[cells[best] // TURN_BINS]
