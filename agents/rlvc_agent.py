@@ -18,6 +18,10 @@ from vistask.features.vocabulary import VOCABULARY_GROUPS
 from vistask.parallel import check_not_importing_main
 from vistask.rlvc import RLVC, VisualClassifier, novelty_bonus
 
+# What min_effect="auto" means on enlarged views (see ``RLVCAgent.split_margin``); views as
+# they are split on any significant difference.
+ENLARGED_MIN_EFFECT = 0.01
+
 
 @checked
 @dataclass(frozen=True)
@@ -96,7 +100,9 @@ class RLVCAgent(VisualAgent):
             (``split_count`` holds the number in use).
         min_effect: a split must also show TD errors whose means differ by more than this
             share of the range of the class values, so that more interactions do not split
-            the classes ever finer (in [0, 1), default 0: any significant difference).
+            the classes ever finer (in [0, 1); 0: any significant difference), or ``"auto"``
+            (the default): 0.01 where SIFT sees the views enlarged (``enlarge``), else 0
+            (``split_margin`` holds the share in use).
         max_stages: stage cap of the stages that follow each database (>= 1, default 300).
         epsilon: exploration rate of the epsilon-greedy databases and of
             ``predict(deterministic=False)`` (in [0, 1], default 0.2).
@@ -147,7 +153,7 @@ class RLVCAgent(VisualAgent):
         databases: int = 4,
         alpha: float = 0.05,
         min_count: int | str = "auto",
-        min_effect: float = 0.0,
+        min_effect: float | str = "auto",
         max_stages: int = 300,
         epsilon: float = 0.2,
         n_envs: int = 128,
@@ -182,9 +188,9 @@ class RLVCAgent(VisualAgent):
             enlarge,
         )
         check_bools(compounds=compounds, nearest_seen=nearest_seen)
-        if not 0 <= min_effect < 1:
-            raise ValueError(f"min_effect must be in [0, 1), got {min_effect!r}")
-        self.min_effect = float(min_effect)
+        if min_effect != "auto" and (isinstance(min_effect, str) or not 0 <= min_effect < 1):
+            raise ValueError(f"min_effect must be 'auto' or in [0, 1), got {min_effect!r}")
+        self.min_effect = min_effect if isinstance(min_effect, str) else float(min_effect)
         if not isinstance(compaction, Compaction):
             check_bools(compaction=compaction)
             compaction = Compaction() if compaction else None
@@ -213,6 +219,15 @@ class RLVCAgent(VisualAgent):
         return self.compaction.structures if self.compaction else 1
 
     @property
+    def split_margin(self) -> float:
+        """Share of the range of the class values a split's TD errors must differ by:
+        ``min_effect``, or for ``"auto"`` ``ENLARGED_MIN_EFFECT`` where the vocabulary sees
+        its views enlarged, else 0."""
+        if self.min_effect != "auto":
+            return self.min_effect
+        return ENLARGED_MIN_EFFECT if self.enlarged else 0.0
+
+    @property
     def rlvc(self) -> RLVC | None:
         """The learner: classes, Q, stage history."""
         return self.learner
@@ -229,7 +244,7 @@ class RLVCAgent(VisualAgent):
             compaction=self.compaction is not None,
             compact_every=settings.every,
             compaction_tolerance=settings.tolerance,
-            min_effect=self.min_effect,
+            min_effect=self.split_margin,
         )
 
     def _greedy(self, presence: torch.Tensor) -> np.ndarray:
@@ -282,9 +297,9 @@ class RLVCAgent(VisualAgent):
     @classmethod
     def _params_from_state(cls, params: dict) -> dict:
         """Saved settings as constructor arguments; files that kept compaction's settings
-        beside a bool give them as a ``Compaction``; files without ``novelty`` learned
-        without it."""
-        params = {"novelty": 0.0, **super()._params_from_state(params)}
+        beside a bool give them as a ``Compaction``; files without ``novelty`` or
+        ``min_effect`` learned without them."""
+        params = {"novelty": 0.0, "min_effect": 0.0, **super()._params_from_state(params)}
         legacy = {
             k: params.pop(k)
             for k in ("compact_every", "compaction_tolerance", "structures")

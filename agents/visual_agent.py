@@ -197,14 +197,18 @@ class VisualAgent(SB3Model):
         return {"enlarge": 1, **params}
 
     @property
+    def enlarged(self) -> bool:
+        """Whether the vocabulary sees its views enlarged (False before it is built)."""
+        return self.extractor is not None and self.extractor.keypoints.enlarge > 1
+
+    @property
     def split_count(self) -> int:
         """Interactions a split needs on each side: ``min_count``, or for ``"auto"``
         ``ENLARGED_MIN_COUNT`` where the vocabulary sees its views enlarged, else
         ``MIN_COUNT``."""
         if self.min_count != "auto":
             return self.min_count
-        enlarged = self.extractor is not None and self.extractor.keypoints.enlarge > 1
-        return ENLARGED_MIN_COUNT if enlarged else MIN_COUNT
+        return ENLARGED_MIN_COUNT if self.enlarged else MIN_COUNT
 
     # -- env --------------------------------------------------------------------------------
     def set_env(self, env: gym.Env) -> None:

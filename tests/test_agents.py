@@ -142,10 +142,14 @@ def test_min_effect_reaches_the_learner_and_is_saved(tmp_path):
 def test_an_agent_on_enlarged_views_keeps_them_when_saved(tmp_path):
     agent = RLVCAgent(small_maze(), n_words=64, n_envs=8, enlarge=2, seed=0).learn(1000)
     assert agent.extractor.keypoints.enlarge == 2
-    # min_count="auto" splits enlarged views on 5 interactions a side, other views on 10.
+    # min_count="auto" splits enlarged views on 5 interactions a side, other views on 10;
+    # min_effect="auto" asks a margin of 0.01 of the value range of enlarged views, else 0.
     assert agent.split_count == agent.rlvc.min_count == 5
+    assert agent.split_margin == agent.rlvc.min_effect == 0.01
     assert RLVCAgent(small_maze()).split_count == 10
+    assert RLVCAgent(small_maze()).split_margin == 0.0
     assert RLVCAgent(small_maze(), min_count=7).split_count == 7
+    assert RLVCAgent(small_maze(), enlarge=2, min_effect=0).split_margin == 0.0
     agent.save(tmp_path / "agent.pt")
     loaded = RLVCAgent.load(tmp_path / "agent.pt")
     assert loaded.enlarge == loaded.extractor.keypoints.enlarge == 2
@@ -162,10 +166,15 @@ def test_an_agent_on_enlarged_views_keeps_them_when_saved(tmp_path):
     auto.save(tmp_path / "auto.pt")
     loaded = RLVCAgent.load(tmp_path / "auto.pt")
     assert loaded.extractor.keypoints.enlarge == 2 and loaded.split_count == 5
+    assert loaded.min_effect == "auto" and loaded.rlvc.min_effect == 0.01
+    # Files saved before ``min_effect`` existed split on any significant difference.
+    assert RLVCAgent._params_from_state({"seed": 0})["min_effect"] == 0.0
     with pytest.raises(ValueError, match="enlarge must be 'auto' or an integer >= 1"):
         RLVCAgent(small_maze(), enlarge="big")
     with pytest.raises(ValueError, match="min_count must be 'auto' or an integer >= 2"):
         RLVCAgent(small_maze(), min_count="big")
+    with pytest.raises(ValueError, match=r"min_effect must be 'auto' or in \[0, 1\)"):
+        RLVCAgent(small_maze(), min_effect="0.5")
 
 
 def test_load_refuses_other_spaces_and_bad_files(small_agent, tmp_path):

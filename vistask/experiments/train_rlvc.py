@@ -416,6 +416,7 @@ def train_rlvc(
         "vocabulary_groups": agent.vocabulary_groups,
         "enlarge": agent.extractor.keypoints.enlarge,  # what "auto" chose
         "min_count": agent.split_count,
+        "min_effect": agent.split_margin,
         "interactions": agent.num_timesteps,
         "rewards_seen": agent.rewards_seen,
         "eval_starts": eval_starts,

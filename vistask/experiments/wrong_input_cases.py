@@ -98,7 +98,7 @@ def _agent_cases() -> Iterator[Case]:
         "databases": (0, -1),
         "alpha": (0.0, 1.0, 1.5),
         "min_count": (0, -3, 2.5, True, "big"),
-        "min_effect": (-0.1, 1.0, math.nan),
+        "min_effect": (-0.1, 1.0, math.nan, "big", "0.5", 1j),
         "max_stages": (0,),
         "epsilon": (-0.1, 1.5),
         "n_envs": (0,),
