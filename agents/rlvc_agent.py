@@ -27,26 +27,36 @@ ENLARGED_MIN_EFFECT = 0.01
 @dataclass(frozen=True)
 class Compaction:
     """How ``RLVCAgent(compaction=...)`` merges classes (paper section 2.5.2);
-    ``compaction=True`` takes these defaults.
+    ``compaction=True`` (the default) takes these defaults.
 
     Args:
         tolerance: merge classes whose values, and the values of their greedy actions in each
             other, differ by at most this share of the range of values (in [0, 1), default
             0.02).
-        every: also merge every this many stages (>= 1; None, the default: only after each
-            database's stages).
-        structures: when ``learn`` ends, learn this many class structures in all (the learned
-            one and others on bootstrap samples of its interactions) and act on the mean of
-            their Q (>= 1, default 1). The structures learn on the cores side by side, so a
-            script that makes the agent runs under ``if __name__ == "__main__":``.
+        every: with ``during_learning``, also merge every this many stages (>= 1; None, the
+            default: only after each database's stages).
+        structures: with ``during_learning``, when ``learn`` ends, learn this many class
+            structures in all (the learned one and others on bootstrap samples of its
+            interactions) and act on the mean of their Q (>= 1, default 1). The structures
+            learn on the cores side by side, so a script that makes the agent runs under
+            ``if __name__ == "__main__":``.
+        during_learning: hold the classes in a BDD while learning, merge them after each
+            database's stages and grow the merged classes again as one decision tree when
+            ``learn`` ends (the paper's compaction); False (the default): learn a tree that
+            only splits, and merge its classes once, when ``learn`` ends, into one decision
+            tree (``RLVC.merge``).
 
     Example:
-        >>> agent = RLVCAgent(env, compaction=Compaction(tolerance=0.01, structures=11))
+        >>> agent = RLVCAgent(env, compaction=Compaction(tolerance=0.01))
+        >>> agent = RLVCAgent(
+        ...     env, compaction=Compaction(tolerance=0.01, during_learning=True, structures=11)
+        ... )
     """
 
     tolerance: float = 0.02
     every: int | None = None
     structures: int = 1
+    during_learning: bool = False
 
     def __post_init__(self) -> None:
         if isinstance(self.tolerance, bool) or not 0 <= self.tolerance < 1:
@@ -56,6 +66,12 @@ class Compaction:
             check_at_least(1, every=self.every)
         check_integers(structures=self.structures)
         check_at_least(1, structures=self.structures)
+        check_bools(during_learning=self.during_learning)
+        if not self.during_learning and (self.every is not None or self.structures > 1):
+            raise ValueError(
+                "Compaction: every and structures act on the classes held in a BDD while "
+                "learning: set during_learning=True"
+            )
 
 
 @checked
@@ -70,8 +86,9 @@ class RLVCAgent(VisualAgent):
     explores where the agent knows least; the classes that act learn on the env's rewards.
     After each database, RLVC stages run until no class splits (or ``max_stages``): classes
     are split where the presence of a visual feature (a word of a SIFT vocabulary fitted on
-    the first database) reduces the variance of the TD errors significantly. A second
-    ``learn`` call continues from what was learned.
+    the first database) reduces the variance of the TD errors significantly. When learning
+    ends, classes whose values and greedy actions are interchangeable merge (``compaction``).
+    A second ``learn`` call continues from what was learned.
 
     Episodes end where the env ends them (terminal states, its time limit), and an exploring
     one also after ``max_blocked`` unchanged views in a row. An env whose percepts show views
@@ -125,10 +142,10 @@ class RLVCAgent(VisualAgent):
         compounds: make compound features (two features in a stable spatial relation) for
             the most aliased classes where they split better than a single feature
             (default False).
-        compaction: hold the classes in a BDD and merge classes with close values and
-            interchangeable greedy actions after each database's stages; when ``learn`` ends,
-            regrow the merged classes as one decision tree. True takes ``Compaction()``'s
-            settings; a ``Compaction`` sets them (default False: a tree that only splits).
+        compaction: when ``learn`` ends, merge classes with close values and interchangeable
+            greedy actions into one decision tree. True (the default) takes
+            ``Compaction()``'s settings; a ``Compaction`` sets them (also to merge during
+            learning); False: the tree that only splits.
         nearest_seen: when ``learn`` ends, keep the tested features of the percepts learned
             on; a percept met later takes the class most of its nearest learned percepts are
             in (default False; not with ``structures`` > 1).
@@ -162,7 +179,7 @@ class RLVCAgent(VisualAgent):
         contrast_threshold: float = 0.005,
         enlarge: int | str = "auto",
         compounds: bool = False,
-        compaction: bool | Compaction = False,
+        compaction: bool | Compaction = True,
         nearest_seen: bool = False,
         vocabulary_groups: int = VOCABULARY_GROUPS,
         novelty: float = 0.01,
@@ -233,7 +250,8 @@ class RLVCAgent(VisualAgent):
         return self.learner
 
     def _new_learner(self) -> RLVC:
-        settings = self.compaction or Compaction()  # unused without compaction
+        during = self.compaction is not None and self.compaction.during_learning
+        settings = self.compaction if during else Compaction()  # the learner's, if it merges
         return RLVC(
             self.extractor.n_features,
             int(self.action_space.n),
@@ -241,7 +259,7 @@ class RLVCAgent(VisualAgent):
             self.alpha,
             self.split_count,
             use_compounds=self.compounds,
-            compaction=self.compaction is not None,
+            compaction=during,
             compact_every=settings.every,
             compaction_tolerance=settings.tolerance,
             min_effect=self.split_margin,
@@ -279,8 +297,10 @@ class RLVCAgent(VisualAgent):
     def _end_databases(self) -> None:
         if self.structures > 1:
             self.rlvc.fuse(self.database, self.structures, self.seed)
-        elif self.compaction is not None:
+        elif self.compaction is not None and self.compaction.during_learning:
             self.rlvc.regrow(self.database)
+        elif self.compaction is not None:
+            self.rlvc.merge(self.database, self.compaction.tolerance)
         if self.nearest_seen:
             self.rlvc.remember(self.database)
 
@@ -298,7 +318,8 @@ class RLVCAgent(VisualAgent):
     def _params_from_state(cls, params: dict) -> dict:
         """Saved settings as constructor arguments; files that kept compaction's settings
         beside a bool give them as a ``Compaction``; files without ``novelty`` or
-        ``min_effect`` learned without them."""
+        ``min_effect`` learned without them, and files whose compaction does not say when
+        it merged merged during learning."""
         params = {"novelty": 0.0, "min_effect": 0.0, **super()._params_from_state(params)}
         legacy = {
             k: params.pop(k)
@@ -307,10 +328,11 @@ class RLVCAgent(VisualAgent):
         }
         compaction = params.get("compaction")
         if isinstance(compaction, dict):
-            params["compaction"] = Compaction(**compaction)
+            params["compaction"] = Compaction(**{"during_learning": True, **compaction})
         elif compaction:
             names = {"compaction_tolerance": "tolerance", "compact_every": "every"}
-            params["compaction"] = Compaction(**{names.get(k, k): v for k, v in legacy.items()})
+            settings = {names.get(k, k): v for k, v in legacy.items()}
+            params["compaction"] = Compaction(during_learning=True, **settings)
         else:
             params["compaction"] = False
         return params

@@ -324,6 +324,7 @@ class VisualAgent(SB3Model):
                     save_state(checkpoint, type(self).__name__, state)
             progress.phase("ending")
             self._end_databases()
+            progress.show(classes=self.learner.n_classes)  # merged, fused or regrown
         self._end_learning(callback)
         if not self.rewards_seen:
             warn(

@@ -97,6 +97,15 @@ def test_bdd_classification_equals_the_trees_before_any_compaction():
     assert set(bdd.selected_features) <= set(tree.selected_features)
 
 
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_tree_gives_back_the_splits_that_made_it(seed):
+    tree, _ = random_splits(20, 50, seed)
+    rebuilt = ClassBDD.from_splits(20, tree.splits(), list(range(tree.n_classes)), in_bdd=False)
+    presence = torch.from_numpy(np.random.default_rng(seed).random((2000, 20)) < 0.3)
+    assert torch.equal(rebuilt.classify(presence), tree.classify(presence))
+    assert ClassTree.from_state_dict(tree.state_dict()).splits() == tree.splits()
+
+
 @pytest.mark.parametrize("simplified", [False, True])
 def test_vectorized_bdd_classification_equals_dds_own_evaluation(simplified):
     _, bdd = random_splits(16, 40, seed=2)
@@ -242,6 +251,28 @@ def test_compaction_merges_the_faces_of_each_state_and_keeps_the_policy(tmp_path
     assert isinstance(loaded.structure, ClassBDD)
     assert torch.equal(loaded.structure.classify(db.presence), classes)
     assert loaded.history == bdd.history
+
+
+def test_a_tree_merged_once_keeps_the_policy_with_fewer_classes_and_round_trips(tmp_path):
+    db = two_faced_chain()
+    tree = RLVC(db.n_features, 2, gamma=0.9).learn(db, progress=False)
+    before, greedy = tree.n_classes, tree.greedy(db.presence)
+    merged = RLVC.from_state_dict(tree.state_dict()).merge(db, 0.01)
+    assert isinstance(merged.structure, ClassBDD) and merged.n_classes < before
+    # The faces of one state merge; every percept keeps its greedy action.
+    assert merged.n_classes <= 5
+    assert torch.equal(merged.greedy(db.presence), greedy)
+    classes = merged.structure.classify(db.presence)
+    torch.testing.assert_close(merged.q, merged.solve(db, classes))
+    merged.save(tmp_path / "rlvc.pt")
+    loaded = RLVC.load(tmp_path / "rlvc.pt")
+    assert isinstance(loaded.structure, ClassBDD)
+    assert torch.equal(loaded.structure.classify(db.presence), classes)
+    # Learning goes on from the merged classes, and a zero tolerance merges only equals.
+    assert loaded.learn(db, progress=False).n_classes >= merged.n_classes
+    assert RLVC.from_state_dict(tree.state_dict()).merge(db, 0.0).n_classes <= before
+    with pytest.raises(ValueError, match=r"tolerance must be in \[0, 1\)"):
+        tree.merge(db, 1.5)
 
 
 def test_compaction_settings_are_checked():

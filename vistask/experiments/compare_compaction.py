@@ -196,7 +196,7 @@ def compare_compaction(
     # error against the test error tells a classifier that underfits from one that overfits.
     train_set = task.train_set() if hasattr(task, "train_set") else None
     measures = MEASURES + (("train_error",) if train_set is not None else ())
-    compaction = Compaction(tolerance=tolerance, every=compact_every)
+    compaction = Compaction(tolerance=tolerance, every=compact_every, during_learning=True)
     given = {"max_stages": max_stages, "contrast_threshold": contrast_threshold}
     overrides = {key: value for key, value in given.items() if value is not None}
     hyperparams = hyperparams_for(env_id, overrides)

@@ -385,7 +385,8 @@ class RLVC:
     def regrow(self, db: InteractionDatabase) -> RLVC:
         """Grow the classes again as one decision tree over the features they test, every
         percept of ``db`` staying in its class (``compaction.induced_splits``), and solve Q
-        on them; needs ``compaction``. ``RLVCAgent`` does this when it ends learning.
+        on them; needs ``compaction``. ``RLVCAgent(compaction=Compaction(during_learning=True))``
+        does this when it ends learning.
 
         The tests that made the classes were each chosen for one class's TD errors; the
         regrown tree's are chosen to tell the classes apart over all percepts, so unseen
@@ -406,6 +407,33 @@ class RLVC:
         )
         with single_thread():
             self._took_new_classes(self.solve(db, classes))
+        self.timing.compaction += time.perf_counter() - start
+        return self
+
+    def merge(self, db: InteractionDatabase, tolerance: float) -> RLVC:
+        """Merge interchangeable classes once (``compaction.merge_groups``; ``tolerance`` is a
+        share of the range of the class values, in [0, 1)) and solve Q on the merged classes
+        of ``db``'s percepts. The classes keep their tests: a percept goes down the same
+        splits as before, to the merged class of the class it reached (a ``ClassBDD`` held
+        as its history). ``RLVCAgent(compaction=True)`` does this when it ends learning.
+
+        Example:
+            >>> rlvc = RLVC(db.n_features, 4, gamma=0.9).learn(db).merge(db, 0.02)
+        """
+        if not 0 <= tolerance < 1:
+            raise ValueError(f"tolerance must be in [0, 1), got {tolerance}")
+        start = time.perf_counter()
+        classes = self.structure.classify(db.presence)
+        q = self.solve(db, classes)
+        groups = merge_groups(q, tolerance * value_range(q))
+        if isinstance(self.structure, ClassTree):
+            self.structure = ClassBDD.from_splits(
+                self.n_features, self.structure.splits(), groups.tolist(), in_bdd=False
+            )
+        else:
+            self.structure.merge(groups)
+        with single_thread():
+            self._took_new_classes(self.solve(db, groups[classes]))
         self.timing.compaction += time.perf_counter() - start
         return self
 
@@ -601,7 +629,9 @@ class RLVC:
     def from_state_dict(cls, state: dict) -> RLVC:
         """The object that ``state_dict`` described."""
         rlvc = cls(**state["config"])
-        rlvc.structure = type(rlvc.structure).from_state_dict(state["structure"])
+        # Merged classes are held as a ClassBDD, whichever structure learned them.
+        structure = ClassBDD if "history" in state["structure"] else ClassTree
+        rlvc.structure = structure.from_state_dict(state["structure"])
         rlvc._splits_since_compaction = state["splits_since_compaction"]
         rlvc.compounds = [Compound.from_list(c) for c in state.get("compounds", [])]
         rlvc._q = state["q"]

@@ -83,6 +83,19 @@ class ClassTree:
         self._tables.clear()
         return new_class
 
+    def splits(self) -> list[tuple[int, int]]:
+        """The splits (class, feature) that made the tree, in order: ``ClassBDD.from_splits``
+        rebuilds the same classes from them."""
+        # A split appends its two children: internal nodes split in the order of their
+        # children, and the class a node held is its "absent" descendants' leaf's class.
+        internal = sorted((a, node) for node, a in enumerate(self.absent) if a >= 0)
+        out = []
+        for absent, node in internal:
+            while self.feature[absent] >= 0:
+                absent = self.absent[absent]
+            out.append((self.leaf_class[absent], self.feature[node]))
+        return out
+
     def classify(self, presence: torch.Tensor | PackedPresence) -> torch.Tensor:
         """(N, F) bool presence -> (N,) long class ids, all rows at once (one step per level)."""
         if presence.ndim != 2 or presence.shape[1] != self.n_features:
