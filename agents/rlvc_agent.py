@@ -43,8 +43,8 @@ class Compaction:
         during_learning: hold the classes in a BDD while learning, merge them after each
             database's stages and grow the merged classes again as one decision tree when
             ``learn`` ends (the paper's compaction); False (the default): learn a tree that
-            only splits, and merge its classes once, when ``learn`` ends, into one decision
-            tree (``RLVC.merge``).
+            only splits, and merge its classes once, when ``learn`` ends, each percept going
+            down the tree's tests to its merged class (``RLVC.merge``).
 
     Example:
         >>> agent = RLVCAgent(env, compaction=Compaction(tolerance=0.01))
@@ -143,9 +143,9 @@ class RLVCAgent(VisualAgent):
             the most aliased classes where they split better than a single feature
             (default False).
         compaction: when ``learn`` ends, merge classes with close values and interchangeable
-            greedy actions into one decision tree. True (the default) takes
-            ``Compaction()``'s settings; a ``Compaction`` sets them (also to merge during
-            learning); False: the tree that only splits.
+            greedy actions. True (the default) takes ``Compaction()``'s settings; a
+            ``Compaction`` sets them (also to merge during learning); False: the classes of
+            the tree that only splits.
         nearest_seen: when ``learn`` ends, keep the tested features of the percepts learned
             on; a percept met later takes the class most of its nearest learned percepts are
             in (default False; not with ``structures`` > 1).
