@@ -415,6 +415,8 @@ def test_train_rlvc_writes_a_summary_that_its_saved_agent_reproduces(tmp_path):
     for key in ("return_ratio", "rlvc_return", "oracle_return", "stages", "classes"):
         assert on_disk[key] == pytest.approx(summary[key])
     assert summary["interactions"] == 2000 and summary["enlarge"] == 1  # 64-pixel views
+    splits = sum(record["splits"] for record in on_disk["history"])
+    assert summary["selected_features"] <= splits  # a test per split, merged classes or not
     assert summary["return_ratio"] == pytest.approx(
         summary["rlvc_return"] / summary["oracle_return"]
     )
