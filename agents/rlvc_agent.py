@@ -297,10 +297,11 @@ class RLVCAgent(VisualAgent):
     def _end_databases(self) -> None:
         if self.structures > 1:
             self.rlvc.fuse(self.database, self.structures, self.seed)
-        elif self.compaction is not None and self.compaction.during_learning:
-            self.rlvc.regrow(self.database)
         elif self.compaction is not None:
-            self.rlvc.merge(self.database, self.compaction.tolerance)
+            if self.compaction.during_learning:
+                self.rlvc.regrow(self.database)
+            else:
+                self.rlvc.merge(self.database, self.compaction.tolerance)
         if self.nearest_seen:
             self.rlvc.remember(self.database)
 
