@@ -405,6 +405,8 @@ class VisualAgent(SB3Model):
         first database also fits the vocabulary and starts the learner). The images of one
         chunk are held at a time: each chunk is reduced to its features before the next."""
         exploring = self.learner is not None
+        if self.database is not None:  # the join makes its own: not held while collecting
+            self.database.drop_split_rows()
         n_envs = self.n_envs if exploring else 1
         chunks = collect_chunks(
             self.env,
@@ -443,9 +445,14 @@ class VisualAgent(SB3Model):
             self.num_timesteps += len(transitions)
             progress.phase("collecting")
         self._log_returns(np.concatenate(returns), progress)
+        # A percept seen again is held once. The join replaces the earlier database and the
+        # parts, which are let go before it drops the repeats across parts: the percepts are
+        # held twice at most.
         earlier = [] if self.database is None else [self.database]
-        # One copy of each part; a percept seen again is held once.
-        self.database = InteractionDatabase.concat(*earlier, *parts).without_repeats()
+        parts = [part.without_repeats() for part in parts]
+        self.database = InteractionDatabase.concat(*earlier, *parts)
+        earlier = parts = None
+        self.database = self.database.without_repeats()
 
     def _fit_vocabulary(self, transitions: Transitions, progress: LearnProgress) -> list:
         """SIFT on the first chunk's percepts, the vocabulary fitted on their descriptors and

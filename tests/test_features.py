@@ -46,7 +46,7 @@ def test_color_descriptors_append_chromaticity(percepts):
 
 def test_batch_extraction_equals_one_by_one(percepts):
     extractor = SiftExtractor(threads=2)
-    images = percepts[:41]  # shares of unequal size
+    images = percepts[:41]  # the threads take one image at a time, in either order
     opencv_threads = cv2.getNumThreads()
     batch = extractor.batch(images)
     assert cv2.getNumThreads() == opencv_threads  # OpenCV's threads are back after the pool

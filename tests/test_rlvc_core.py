@@ -483,6 +483,33 @@ def test_a_database_holds_each_repeated_percept_once_and_learns_the_same_classes
     assert kept.without_repeats() is kept
 
 
+def test_parts_without_their_repeats_join_into_the_same_database():
+    # What learn does to hold less: each part drops its repeats before the parts are joined.
+    rng = np.random.default_rng(4)
+    bank = rng.random((30, 10)) < 0.4
+
+    def part(n: int) -> InteractionDatabase:
+        seen = rng.integers(0, 30, 2 * n)
+        return InteractionDatabase(
+            torch.from_numpy(bank[seen]),
+            torch.arange(n),
+            torch.from_numpy(rng.integers(0, 2, n)),
+            torch.from_numpy(rng.random(n)),
+            torch.arange(n, 2 * n),
+            torch.zeros(n, dtype=torch.bool),
+            positions=np.stack([seen % 3, seen % 3], axis=1).astype(float),
+        )
+
+    parts = [part(n) for n in (300, 200, 100)]
+    whole = InteractionDatabase.concat(*parts).without_repeats()
+    first = InteractionDatabase.concat(*(p.without_repeats() for p in parts)).without_repeats()
+    assert len(whole.presence) == 30
+    assert torch.equal(first.presence.dense(), whole.presence.dense())
+    for name in ("obs", "next_obs", "counts", "actions", "rewards"):
+        assert torch.equal(getattr(first, name), getattr(whole, name))
+    np.testing.assert_array_equal(first.positions, whole.positions)
+
+
 def synthetic_chain(n_states: int = 6, n: int = 4000, seed: int = 0) -> InteractionDatabase:
     """A noisy chain whose state is shown by one of n_states features: RLVC must split
     the single initial class into the chain's states to act well."""

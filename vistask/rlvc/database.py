@@ -537,6 +537,11 @@ class InteractionDatabase:
             pair, percept, rows, features = self._pairs
             self._pairs = (pair, percept, *_with_pairs_of(added, percept, first, rows, features))
 
+    def drop_split_rows(self) -> None:
+        """Forget the split search's cached sparse pairs (``split_rows``); they are made again
+        when next asked for."""
+        self._coo = self._pairs = None
+
     def interaction_features(self) -> tuple[torch.Tensor, torch.Tensor]:
         """Sparse (interaction, feature) pairs of x_t: rows (nnz,), features (nnz,), cached;
         each feature's pairs in the order of their interactions."""
