@@ -451,7 +451,7 @@ class VisualAgent(SB3Model):
         earlier = [] if self.database is None else [self.database]
         parts = [part.without_repeats() for part in parts]
         self.database = InteractionDatabase.concat(*earlier, *parts)
-        earlier = parts = None
+        del earlier, parts
         self.database = self.database.without_repeats()
 
     def _fit_vocabulary(self, transitions: Transitions, progress: LearnProgress) -> list:
