@@ -29,6 +29,7 @@ from vistask.checks import (
     warn,
 )
 from vistask.features import SiftExtractor, VisualFeatureExtractor, choose_enlarge
+from vistask.features.keypoints import extract_once
 from vistask.features.vocabulary import CACHE_SIZE, VOCABULARY_GROUPS
 from vistask.rlvc import (
     InteractionDatabase,
@@ -468,8 +469,10 @@ class VisualAgent(SB3Model):
         keypoints = SiftExtractor(
             self.contrast_threshold, self.max_keypoints, panel_widths=panel_widths, enlarge=enlarge
         )
+        met: dict = {}  # a percept met again is extracted once
         for start in range(0, len(percepts), SIFT_CHUNK):
-            detected += keypoints.batch(percepts[start : start + SIFT_CHUNK])
+            chunk = percepts[start : start + SIFT_CHUNK]
+            detected += extract_once(met, chunk, keypoints.batch, len(percepts))
             progress.show(sift=f"{len(detected)}/{len(percepts)}")
         t0 = time.perf_counter()
         progress.phase("vocabulary")

@@ -87,6 +87,23 @@ def test_a_task_that_is_not_minigrid_is_refused_and_failed_runs_end_the_benchmar
     assert list(summary[ENV]["random"]["per_seed"]) and len(summary["failed"]) == 1
 
 
+def test_the_first_database_extracts_each_frame_it_meets_once(monkeypatch):
+    from vistask.agents import RLVCAgent
+    from vistask.features import SiftExtractor
+
+    extracted = []
+    detect = SiftExtractor._detect
+
+    def counted(self, image):
+        extracted.append(image.tobytes())
+        return detect(self, image)
+
+    monkeypatch.setattr(SiftExtractor, "_detect", counted)
+    # 3,000 random steps in a 3 x 3 room meet at most its 36 frames (cell and heading).
+    RLVCAgent(make_gridworld(ENV), databases=1, max_stages=1, seed=0).learn(3000)
+    assert 1 < len(extracted) == len(set(extracted)) <= 36
+
+
 def test_the_percept_table_acts_on_what_the_database_holds_where_the_classes_cannot():
     from vistask.agents import RLVCAgent
 

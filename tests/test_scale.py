@@ -84,7 +84,12 @@ def test_bench_scale_measures_each_budget_once_and_resumes(tmp_path, capsys):
 def test_one_run_learns_the_same_classes_on_one_and_on_two_threads():
     from vistask.experiments.bench_parallel import bench_one_run
 
-    rows = bench_one_run((1, 2), interactions=3_000)
-    assert [r["workers"] for r in rows] == [1, 2]
+    rows = bench_one_run((1, 2), interactions=3_000, views=64)
+    assert [(r["work"], r["workers"]) for r in rows] == [
+        ("one RLVC run", 1),
+        ("one RLVC run", 2),
+        ("SIFT of 64 views", 1),
+        ("SIFT of 64 views", 2),
+    ]
     assert rows[0]["classes"] > 1
     assert all(r["same_results"] for r in rows)

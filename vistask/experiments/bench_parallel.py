@@ -1,7 +1,7 @@
 """Runs side by side (``scripts/bench_parallel.py``): the quick comparison with one worker and
 with W worker processes and W Ray workers, grasp trials in gymnasium's ``AsyncVectorEnv``
-processes and in Ray actors with one and with W workers, and one RLVC run on one thread and on
-W threads.
+processes and in Ray actors with one and with W workers, and one RLVC run, and SIFT alone,
+on one thread and on W threads.
 
 Every configuration runs the same work, one configuration after another, so the speed-ups are
 ratios measured in one run; each row also says whether its results equal the one-worker
@@ -17,13 +17,16 @@ from collections.abc import Sequence
 from pathlib import Path
 
 import gymnasium as gym
+import numpy as np
 import torch
 
 from vistask.agents import RLVCAgent
 from vistask.experiments.compare import compare
 from vistask.experiments.comparison import Comparison
+from vistask.features import SiftExtractor
 from vistask.grasp import demonstration_density, run_trials, scripted_teacher_grasps
 from vistask.parallel import worker_threads
+from vistask.rlvc import collect
 from vistask.runs import run_dir, write_summary
 
 
@@ -99,10 +102,13 @@ def bench_grasp_trials(
     return rows
 
 
-def bench_one_run(workers: Sequence[int], interactions: int = 40_000) -> list[dict]:
+def bench_one_run(
+    workers: Sequence[int], interactions: int = 40_000, views: int = 4096
+) -> list[dict]:
     """One ``RLVCAgent`` run on the maze (its defaults, seed 0; ``train_rlvc.py``'s run) with
     torch, OpenCV and SIFT's batches on each thread count: seconds of ``learn``, and whether
-    the classes and their Q equal the fewest threads' run."""
+    the classes and their Q equal the fewest threads' run. Then SIFT alone on ``views`` maze
+    views of a random walk, on each thread count: what threads give the run's largest part."""
     rows, reference = [], None
     for n in workers:
         with worker_threads(n):
@@ -121,6 +127,33 @@ def bench_one_run(workers: Sequence[int], interactions: int = 40_000) -> list[di
                 "classes": learned[0],
                 "same_results": learned[0] == reference[0]
                 and torch.equal(learned[1], reference[1]),
+            }
+        )
+    return rows + _sift_alone(workers, views)
+
+
+def _sift_alone(workers: Sequence[int], views: int) -> list[dict]:
+    """``SiftExtractor.batch`` of ``views`` maze views on each thread count: seconds, and
+    whether every keypoint equals the fewest threads' run."""
+    # Blocked moves add no view: twice the interactions give enough.
+    images = list(collect(gym.make("vistask/VisualMaze-v0"), 2 * views, seed=0).percepts[:views])
+    rows, reference = [], None
+    for n in workers:
+        with worker_threads(n):
+            extractor = SiftExtractor(threads=n)
+            t0 = time.perf_counter()
+            detected = extractor.batch(images)
+            seconds = time.perf_counter() - t0
+        arrays = [array for k in detected for array in (k.xy, k.descriptors)]
+        reference = reference or arrays
+        rows.append(
+            {
+                "work": f"SIFT of {len(images)} views",
+                "runner": "threads",
+                "workers": n,
+                "seconds": seconds,
+                "same_results": len(arrays) == len(reference)
+                and all(np.array_equal(a, b) for a, b in zip(arrays, reference, strict=True)),
             }
         )
     return rows
