@@ -20,6 +20,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
+from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
 
 import vistask.envs  # noqa: F401  (registers the envs in the fresh process)
 from vistask.agents import RLVCAgent
@@ -202,6 +203,11 @@ def plot_scale(summary: dict, path: Path) -> Path:
             (line,) = ax.loglog(sizes, values, "o-", label=name)
             # Proportional growth from the smallest budget, for the eye.
             ax.loglog(sizes, [values[0] * b / sizes[0] for b in sizes], ":", color=line.get_color())
+    for ax in axes[:2]:
+        # Ticks at 1, 2 and 5 a decade, as thousands: the log axis's own labels run together.
+        ax.xaxis.set_major_locator(LogLocator(subs=(1.0, 2.0, 5.0)))
+        ax.xaxis.set_major_formatter(FuncFormatter(lambda x, _: f"{x / 1000:g}k"))
+        ax.xaxis.set_minor_formatter(NullFormatter())
     axes[0].set(xlabel="interactions", ylabel="seconds", title="time of one run (dotted: x1)")
     axes[1].set(xlabel="interactions", ylabel="peak resident MB", title="memory (dotted: x1)")
     bottom = np.zeros(len(envs))
