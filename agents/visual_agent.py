@@ -39,7 +39,6 @@ from vistask.rlvc import (
     collect_chunks,
 )
 from vistask.rlvc.copies import copy_env, steps_own_copies, warn_unmade_settings
-from vistask.rlvc.split import CELL_BYTES, TABLE_CELLS
 from vistask.saving import load_state, save_state
 
 MAX_BLOCKED = 2  # default: an exploring episode ends after this many unchanged views in a row
@@ -345,7 +344,7 @@ class VisualAgent(SB3Model):
     def memory_needed_mb(self, total_timesteps: int) -> float:
         """About how many MB of memory ``learn(total_timesteps)`` takes at its peak beyond what
         the process holds before it: the databases (joined with the earlier ones), one chunk
-        of images, the vocabulary's descriptors and the split search's tables.
+        of images and the vocabulary's descriptors.
 
         Raises:
             ValueError: total_timesteps below 1."""
@@ -360,10 +359,8 @@ class VisualAgent(SB3Model):
         image = int(np.prod(self.observation_space.shape))
         chunk = min(interactions, PERCEPTS_PER_CHUNK) * (image + keypoints * DESCRIPTOR_BYTES)
         cache = min(interactions, CACHE_SIZE) * (keypoints * 16 + CACHE_ENTRY_BYTES)
-        # The split search's (class, action) groups that can split hold 2 split_count each.
-        cells = min(TABLE_CELLS, interactions // (2 * self.split_count) * self.n_words)
         # A database is held twice while it joins the earlier ones.
-        need = 2 * interactions * per_interaction + chunk + cache + cells * CELL_BYTES
+        need = 2 * interactions * per_interaction + chunk + cache
         return need / 2**20
 
     def _check_memory(self, total_timesteps: int) -> None:

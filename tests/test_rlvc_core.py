@@ -133,10 +133,7 @@ def brute_force_splits(
     return best
 
 
-@pytest.mark.parametrize("table_cells", [None, 40, 130])
-def test_split_search_equals_a_per_class_brute_force(table_cells, monkeypatch):
-    if table_cells is not None:  # the (group, feature) table counted one to three groups a time
-        monkeypatch.setattr(split_module, "TABLE_CELLS", table_cells)
+def test_split_search_equals_a_per_class_brute_force():
     rng = np.random.default_rng(3)
     n, f, n_states, n_actions = 1500, 40, 5, 3
     presence = torch.from_numpy(rng.random((n, f)) < 0.4)
@@ -180,7 +177,9 @@ def test_split_search_equals_a_per_class_brute_force(table_cells, monkeypatch):
     }
 
 
-def test_split_search_in_blocks_of_groups_gives_the_one_tables_splits(monkeypatch):
+def test_split_search_gives_the_same_splits_when_its_cells_outgrow_their_first_room(
+    monkeypatch,
+):
     db = synthetic_chain(n_states=6, n=4000)
     rows, features = db.interaction_features()
     rng = np.random.default_rng(0)
@@ -188,7 +187,7 @@ def test_split_search_in_blocks_of_groups_gives_the_one_tables_splits(monkeypatc
     deltas = torch.from_numpy(rng.normal(0, 1, len(db))) + 2.0 * db.presence[db.obs, 1]
     args = (rows, features, states, db.actions, deltas, 40, 2, db.n_features)
     whole = find_splits(*args)
-    monkeypatch.setattr(split_module, "TABLE_CELLS", 3 * db.n_features)  # 27 blocks
+    monkeypatch.setattr(split_module, "FIRST_CELLS", 1)  # doubled again and again
     assert whole and find_splits(*args) == whole
 
 

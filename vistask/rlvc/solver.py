@@ -82,19 +82,20 @@ def value_iteration(
     visited = mdp.counts > 0
     n_states, n_actions = mdp.counts.shape
     state, action, successor = mdp.transitions.indices()
-    sa = state * n_actions + action
-    p = mdp.transitions.values()
-    r = mdp.rewards.reshape(-1)
-    v = torch.zeros(n_states, dtype=torch.float64)
-    for _ in range(max_iters):
-        expected = torch.zeros_like(r).index_add_(0, sa, p * v[successor])
-        q = (r + gamma * expected).view(n_states, n_actions)
-        new_v = state_values(q.masked_fill(~visited, -torch.inf))
-        converged = (new_v - v).abs().max() < tol
-        v = new_v
-        if converged:
-            break
-    return q.masked_fill(~visited, -torch.inf)
+    from vistask.rlvc.kernels import value_iteration as iterate  # numba, on first use
+
+    q = iterate(
+        (state * n_actions + action).numpy(),
+        successor.numpy(),
+        mdp.transitions.values().double().numpy(),
+        mdp.rewards.reshape(-1).double().numpy(),
+        visited.reshape(-1).numpy(),
+        float(gamma),
+        float(tol),
+        int(max_iters),
+        n_actions,
+    )
+    return torch.from_numpy(q).view(n_states, n_actions).masked_fill(~visited, -torch.inf)
 
 
 @checked

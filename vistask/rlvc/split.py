@@ -7,8 +7,9 @@ equivalently we maximise the reduction of the sum of squared deviations
     SSE(Δ) − SSE(Δ_f) − SSE(Δ_¬f),
 
 which, unlike the raw eq. (7) value, is comparable across actions with different sample counts.
-Counts, sums and sums of squares of Δ for every (class, action, feature) are three scatter-adds
-over the sparse (interaction, feature) list: X^T 1, X^T Δ and X^T Δ² restricted to each group.
+Counts, sums and sums of squares of Δ for every (class, action, feature) are X^T 1, X^T Δ and
+X^T Δ² restricted to each group, X the sparse (interaction, feature) presence, added group by
+group in one pass (``kernels.passing_cells``).
 RLJC's joint classes also split on action thresholds (``find_threshold_splits``), scored the
 same way from cumulative sums over the actions sorted per class.
 """
@@ -112,14 +113,8 @@ def welch_splits(
     return reduction, p, maybe & (p < alpha)
 
 
-# (group, feature) cells whose counts a split search holds at once, in tables of CELL_BYTES a
-# cell: this bounds them near 40 MB however many classes the data carry.
-TABLE_CELLS = 1 << 23
-CELL_BYTES = 5  # an int32 count and a bool
-
-
 def candidate_moments(
-    group_row: torch.Tensor,
+    row_group: torch.Tensor,
     features: torch.Tensor,
     rows: torch.Tensor,
     moments: tuple[torch.Tensor, torch.Tensor, torch.Tensor],
@@ -131,10 +126,10 @@ def candidate_moments(
     and their count, sum and sum of squares of TD errors where the feature is present.
 
     Args:
-        group_row: (nnz,) long row of each (row, feature) pair's group, in 0..G (G: a group
-            that cannot split, never counted).
-        features: (nnz,) long feature of each pair.
-        rows: (nnz,) long row of each pair.
+        row_group: (R,) long group of each row, in 0..G (G: a group that cannot split, never
+            counted).
+        features: (nnz,) long feature of each (row, feature) pair.
+        rows: (nnz,) long row of each pair, non-decreasing (pairs by row).
         moments: (R,) float64 count (whole numbers), sum and sum of squares of the TD errors
             of each row.
         n_g: (G,) float64 interactions of each group.
@@ -143,44 +138,27 @@ def candidate_moments(
 
     Returns:
         cells (K,) long, ``group * F + feature``, ascending; counts, sums and sums of squares
-        (K,) float64.
+        (K,) float64, each summed row by row in the rows' order.
     """
-    rows_per_block = max(1, TABLE_CELLS // n_features)
-    n_blocks = -(-len(n_g) // rows_per_block)
-    if n_blocks == 1:
-        blocks = [slice(None)]
-    else:
-        # The pairs of each block of groups, in their order (a stable counting sort: numpy
-        # sorts 16-bit keys by radix).
-        block = (group_row // rows_per_block).clamp_max(n_blocks).numpy().astype(np.uint16)
-        order = torch.from_numpy(np.argsort(block, kind="stable"))
-        blocks = torch.split(order, np.bincount(block, minlength=n_blocks + 1).tolist())
-    counts = moments[0].to(torch.int32)
-    found = []
-    for b in range(n_blocks):
-        pairs, first = blocks[b], b * rows_per_block
-        n_rows = min(rows_per_block, len(n_g) - first)
-        size = n_rows * n_features
-        # Pairs of the groups that cannot split land in one row past the block's, cut off.
-        key = (group_row[pairs] - first) * n_features + features[pairs]
-        row = rows[pairs]
-        # Counts first, in a table of int32; sums only for the pairs of the cells that pass.
-        table = torch.zeros(size + n_features, dtype=torch.int32).index_add_(0, key, counts[row])
-        n_f = table[:size].view(n_rows, n_features)
-        room = (n_g[first : first + n_rows, None] - min_count).to(torch.int32)
-        passes = torch.zeros(size + n_features, dtype=torch.bool)
-        passes[:size] = ((n_f >= min_count) & (n_f <= room)).flatten()
-        cell = torch.nonzero(passes).flatten()
-        n_cell = table[cell].double()
-        table[cell] = torch.arange(len(cell), dtype=torch.int32)  # now each cell's index
-        hit = torch.nonzero(passes[key]).flatten()
-        at, row = table[key[hit]].long(), row[hit]
-        s1, s2 = (
-            torch.zeros(len(cell), dtype=torch.float64).index_add_(0, at, m[row])
-            for m in moments[1:]
-        )
-        found.append((cell + first * n_features, n_cell, s1, s2))
-    return tuple(torch.cat(parts) for parts in zip(*found, strict=True))
+    n_rows = len(row_group)
+    starts = np.zeros(n_rows + 1, dtype=np.int64)
+    np.cumsum(np.bincount(rows.numpy(), minlength=n_rows), out=starts[1:])
+    from vistask.rlvc.kernels import passing_cells  # numba, on first use
+
+    found = passing_cells(
+        row_group.numpy(),
+        starts,
+        features.numpy(),
+        *(m.double().numpy() for m in moments),
+        (n_g - min_count).numpy(),
+        n_features,
+        min_count,
+        FIRST_CELLS,
+    )
+    return tuple(torch.from_numpy(a) for a in found)
+
+
+FIRST_CELLS = 1 << 12  # room for passing cells; doubled as they come
 
 
 # Splits of a class whose SSE reductions differ by less than this share of their group's sum
@@ -313,7 +291,7 @@ def find_splits(
         moments = group_moments(pairs, deltas, n_pairs)
     row_group = compact[row_group]
     candidate, n_f, s1_f, s2_f = candidate_moments(
-        row_group[rows], features, rows, moments, n_g, n_features, min_count
+        row_group, features, rows, moments, n_g, n_features, min_count
     )
     if len(candidate) == 0:
         return []
