@@ -1,9 +1,9 @@
 """Loops of the stage loop compiled by numba: the split search's cells and value iteration.
 
-They add up in the same order as the tensor operations they replace, so their results equal
-those to the last bit. numba is imported on first use (``split.candidate_moments``,
-``solver.value_iteration``): acting never needs it, and it costs about 50 MB and 0.3 s to
-import.
+They add up in the order of the same sums written as torch scatter-adds (``index_add_``), so
+their results equal those to the last bit. numba is imported on first use
+(``split.candidate_moments``, ``solver.value_iteration``): acting never needs it, and it
+takes about 50 MB and 0.3 s to import; the first call compiles (numba caches the code).
 """
 
 from __future__ import annotations
