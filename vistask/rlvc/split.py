@@ -113,6 +113,9 @@ def welch_splits(
     return reduction, p, maybe & (p < alpha)
 
 
+FIRST_CELLS = 1 << 12  # room for passing cells; doubled as they come
+
+
 def candidate_moments(
     row_group: torch.Tensor,
     features: torch.Tensor,
@@ -156,9 +159,6 @@ def candidate_moments(
         FIRST_CELLS,
     )
     return tuple(torch.from_numpy(a) for a in found)
-
-
-FIRST_CELLS = 1 << 12  # room for passing cells; doubled as they come
 
 
 # Splits of a class whose SSE reductions differ by less than this share of their group's sum
